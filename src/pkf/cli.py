@@ -1,0 +1,140 @@
+"""The `pkf` command line: parse options, call the pipeline stages, print (DESIGN §1.1).
+
+Exit codes: 0 success, 2 bad usage or bad input (one line on stderr), 1 internal error.
+Set PKF_DEBUG=1 to see the traceback of an internal error.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import traceback
+from pathlib import Path
+
+import click
+
+import pkf
+from pkf.errors import InputError
+from pkf.geometry import BUILTIN_GEOMETRIES
+from pkf.simulation.generators import GENERATORS
+from pkf.simulation.species import SPECIES_NAMES
+
+
+class NotBuiltYet(Exception):
+    """A stage of the pipeline that does not exist yet: say so, never make numbers up."""
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(pkf.__version__, prog_name="pkf")
+def cli() -> None:
+    """pkf: hit-triplet tracking and the LHCb parametrized Kalman filter.
+
+    Units: mm, MeV, tesla, rad. See README.md for the two commands to start with.
+    """
+
+
+@cli.command()
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Dataset directory to create.")
+@click.option("--geometry", default="lhcb-like", show_default=True,
+              help=f"Built-in geometry ({', '.join(BUILTIN_GEOMETRIES)}) or a TOML file.")
+@click.option("--generator", default="minbias", show_default=True, type=click.Choice(GENERATORS))
+@click.option("--events", default=100, show_default=True, type=int, help="Number of events.")
+@click.option("--pileup", default=1.0, show_default=True, type=float, help="Mean pp interactions ν per event.")
+@click.option("--seed", default=1, show_default=True, type=int, help="Random seed (same seed → identical files).")
+@click.option("--species", default="pion", show_default=True, type=click.Choice(SPECIES_NAMES), help="Gun species.")
+@click.option("--particles", default=10, show_default=True, type=int, help="Gun particles per event.")
+@click.option("--p-min", default=2000.0, show_default=True, type=float, help="Gun momentum minimum [MeV].")
+@click.option("--p-max", default=100000.0, show_default=True, type=float, help="Gun momentum maximum [MeV].")
+@click.option("--eta-min", default=2.0, show_default=True, type=float, help="Gun pseudorapidity minimum.")
+@click.option("--eta-max", default=5.0, show_default=True, type=float, help="Gun pseudorapidity maximum.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
+def simulate(out: Path, overwrite: bool, **options) -> None:
+    """Simulate events into DATASET (hits, particles, mc_hits, meta.json)."""
+    from pkf.pipeline.simulate import SimulationConfig, run_simulation
+
+    config = SimulationConfig(**options)
+    meta = run_simulation(config, out, overwrite=overwrite)
+    counts = meta["counts"]
+    click.echo(f"wrote {counts['events']} events, {counts['hits']} hits to {out}")
+
+
+def _not_built(stage: str, issue: int) -> None:
+    raise NotBuiltYet(f"pkf {stage}: not built yet (tracked in issue #{issue}); no output was written")
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+def reconstruct() -> None:
+    """Reconstruct DATASET into RUN (not built yet)."""
+    _not_built("reconstruct", 3)
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+def tune() -> None:
+    """Tune the parametrized extrapolations on DATASET (not built yet)."""
+    _not_built("tune", 4)
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+def report() -> None:
+    """Write resolution and pull reports for runs (not built yet)."""
+    _not_built("report", 6)
+
+
+@cli.command()
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Directory for everything.")
+@click.option("--events", default=200, show_default=True, type=int, help="Number of B_s → φφ events.")
+@click.option("--seed", default=1, show_default=True, type=int)
+@click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
+def demo(out: Path, events: int, seed: int, overwrite: bool) -> None:
+    """Run the whole chain on the built-in default (what is built of it so far)."""
+    from pkf.io.atomic import check_output_dir
+    from pkf.pipeline.simulate import SimulationConfig, run_simulation
+
+    check_output_dir(out, overwrite)
+    out.mkdir(parents=True, exist_ok=True)
+    dataset = out / "dataset"
+    config = SimulationConfig(generator="bs2phiphi", events=events, seed=seed)
+    meta = run_simulation(config, dataset, overwrite=True)
+    click.echo(f"simulated {meta['counts']['events']} B_s -> phi phi events "
+               f"({meta['counts']['hits']} hits) into {dataset}")
+    click.echo("not built yet: reconstruction (issue #3), parametrized fit (#4), "
+               "triplet seeding (#5), report (#6) — no fit numbers to show")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `pkf` console script; returns the exit code."""
+    try:
+        cli.main(args=argv, prog_name="pkf", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.exceptions.Abort:
+        click.echo("pkf: aborted", err=True)
+        return 1
+    except click.UsageError as exc:
+        command = exc.ctx.command_path if exc.ctx else "pkf"
+        click.echo(f"{command}: error: {exc.format_message()}", err=True)
+        return 2
+    except InputError as exc:
+        click.echo(f"pkf: error: {exc}", err=True)
+        return 2
+    except NotBuiltYet as exc:
+        click.echo(str(exc), err=True)
+        return 1
+    except KeyboardInterrupt:
+        click.echo("pkf: interrupted; no partial output was left", err=True)
+        return 130
+    except Exception as exc:  # an internal error: one line, the traceback on request
+        if os.environ.get("PKF_DEBUG"):
+            traceback.print_exc()
+        message = str(exc).splitlines()[0] if str(exc) else ""
+        click.echo(f"pkf: internal error: {type(exc).__name__}: {message} (set PKF_DEBUG=1 for the traceback)", err=True)
+        return 1
+    return 0
+
+
+def run() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,8 @@
+"""Exceptions that the command line turns into a one-line message and exit code 2."""
+
+
+class InputError(Exception):
+    """Bad usage or bad input: the message is one line that names what is wrong.
+
+    The CLI prints it on stderr and exits with code 2 (DESIGN §1.1, §13).
+    """

@@ -1,0 +1,222 @@
+"""Atomic, deterministic writers: Parquet tables, JSON files and staged output directories.
+
+A crashed or interrupted command must leave no file that looks complete
+(DESIGN §6, §13): every file is written under a hidden temporary name in its final
+directory and then renamed into place (``os.replace`` is atomic on POSIX), and
+whole output directories are built in a hidden sibling directory that is renamed
+into place only when the command succeeds (:func:`staged_output_dir`).
+
+Parquet output is deterministic: the same table gives a byte-identical file
+(fixed writer options, chunk layout normalised), for a given pyarrow version —
+``created_by`` in the footer names that version.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import secrets
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pkf.errors import InputError
+
+__all__ = [
+    "PARQUET_WRITE_OPTIONS",
+    "atomic_write_table",
+    "atomic_write_json",
+    "check_output_dir",
+    "staged_output_dir",
+]
+
+#: Fixed options of ``pyarrow.parquet.write_table`` for every pkf table.
+PARQUET_WRITE_OPTIONS: dict[str, object] = {
+    "version": "2.6",
+    "compression": "zstd",
+    "compression_level": 3,
+    "use_dictionary": True,
+    "write_statistics": True,
+    "row_group_size": 1 << 20,
+    "data_page_size": 1 << 20,
+    "data_page_version": "1.0",
+    "store_schema": True,
+}
+
+
+def _temp_sibling(path: Path) -> Path:
+    """A hidden, unique name beside ``path`` (hidden so dataset readers skip it)."""
+    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write_table(table: pa.Table, path: str | os.PathLike, *, schema: pa.Schema | None = None) -> Path:
+    """Write ``table`` to the Parquet file ``path`` atomically and deterministically.
+
+    The file is written under a hidden temporary name in the same directory,
+    flushed to disk, then renamed over ``path``. The same table content always
+    gives the same bytes (options :data:`PARQUET_WRITE_OPTIONS`; chunks are
+    combined first so the chunk layout of the input does not matter).
+
+    Args:
+        table: the data.
+        path: destination file (its directory must exist).
+        schema: if given, the table's columns are selected in schema order and cast
+            to it exactly (a pkf schema from :mod:`pkf.io.schemas`).
+
+    Returns:
+        the destination path.
+    """
+    path = Path(path)
+    if schema is not None:
+        table = table.select(schema.names).cast(schema)
+    table = table.combine_chunks()
+    tmp = _temp_sibling(path)
+    try:
+        pq.write_table(table, tmp, **PARQUET_WRITE_OPTIONS)
+        _fsync_file(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return path
+
+
+def _jsonable(obj: object) -> object:
+    """Convert numpy scalars/arrays, paths and tuples to JSON types; NaN/±inf become null."""
+    if isinstance(obj, Mapping):
+        out = {}
+        for key, value in obj.items():
+            if not isinstance(key, str):
+                raise TypeError(f"JSON object keys must be str, got {key!r}")
+            out[key] = _jsonable(value)
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_jsonable(v) for v in obj.tolist()]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        value = float(obj)
+        return value if math.isfinite(value) else None
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if obj is None or isinstance(obj, str):
+        return obj
+    raise TypeError(f"cannot write {type(obj).__name__} to JSON")
+
+
+def atomic_write_json(obj: object, path: str | os.PathLike) -> Path:
+    """Write ``obj`` as JSON to ``path`` atomically (sorted keys, indent 2, trailing newline).
+
+    numpy scalars and arrays, tuples and paths are converted; non-finite floats
+    (NaN, ±inf) are written as ``null`` so the file is strict JSON.
+
+    Returns:
+        the destination path.
+    """
+    path = Path(path)
+    text = json.dumps(_jsonable(obj), sort_keys=True, indent=2, allow_nan=False) + "\n"
+    tmp = _temp_sibling(path)
+    try:
+        with open(tmp, "x", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return path
+
+
+def check_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Path:
+    """Check that the output directory ``final_path`` can be created; return it as an absolute path.
+
+    Raises:
+        InputError: the parent directory does not exist or is not writable,
+            ``final_path`` is an existing file, or it is a non-empty directory and
+            ``overwrite`` is False.
+    """
+    shown = os.fspath(final_path)
+    final = Path(os.path.abspath(final_path))
+    parent = final.parent
+    if final == parent:
+        raise InputError(f"{shown}: cannot use the filesystem root as output directory")
+    if not parent.is_dir():
+        raise InputError(f"{shown}: cannot create output directory: parent directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{shown}: cannot create output directory: parent directory {parent} is not writable")
+    if final.exists() or final.is_symlink():
+        if not final.is_dir() or final.is_symlink():
+            raise InputError(f"{shown}: output path exists and is not a directory")
+        if not overwrite and any(final.iterdir()):
+            raise InputError(f"{shown}: output directory exists and is not empty (use --overwrite to replace it)")
+    return final
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def staged_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Iterator[Path]:
+    """Build an output directory in a temporary sibling and move it into place on success.
+
+    On entry, checks that ``final_path`` can be created (:func:`check_output_dir`),
+    so the caller gets the one-line :class:`~pkf.errors.InputError` before doing
+    any work. Yields a new, empty hidden directory beside ``final_path`` to write
+    into. When the ``with`` block ends normally, the directory is renamed to
+    ``final_path``; a previous ``final_path`` (an empty directory, or any directory
+    when ``overwrite`` is True) is first renamed out of the way and deleted after
+    the new one is in place. If the block raises (including KeyboardInterrupt), the
+    temporary directory is deleted and any previous output is left untouched.
+
+    Example::
+
+        with staged_output_dir(out, overwrite=opts.overwrite) as tmp:
+            atomic_write_table(hits, tmp / "hits.parquet", schema=HITS)
+            atomic_write_json(meta, tmp / "meta.json")
+    """
+    final = check_output_dir(final_path, overwrite)
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    try:
+        os.chmod(staging, 0o777 & ~_umask())
+        yield staging
+        # Re-check: another process may have created the output meanwhile.
+        check_output_dir(final, overwrite)
+        if final.exists():
+            old = final.with_name(f".{final.name}.{os.getpid()}.{secrets.token_hex(4)}.old")
+            os.replace(final, old)
+            try:
+                os.replace(staging, final)
+            except BaseException:
+                os.replace(old, final)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(staging, final)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise

@@ -1,0 +1,356 @@
+"""Arrow/Parquet schemas of every pkf table (DESIGN §6), their validation rules and table builders.
+
+Dataset tables (written by ``pkf simulate``): :data:`HITS`, :data:`PARTICLES`,
+:data:`MC_HITS`. Run tables (written by ``pkf reconstruct``): :data:`CHI2`,
+:data:`CANDIDATES`, :data:`STATES`, :data:`PULLS`.
+
+Units (DESIGN §2): lengths in mm, momenta and masses in MeV, ``qop`` in 1/MeV,
+slopes ``tx = dx/dz``, ``ty = dy/dz`` dimensionless.
+
+Every schema carries the metadata key ``pkf.table`` (its table name); the reader
+uses it to find the table's validation rules (:data:`TABLE_SPECS`). A column is
+nullable only where §6 allows a missing value (``v``/``sigma_v`` of strip hits,
+the true slopes and ``qop`` of noise hits in ``mc_hits``). Run-table floats are not
+nullable: a failed fit writes NaN and says why in ``status``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+__all__ = [
+    "HITS",
+    "PARTICLES",
+    "MC_HITS",
+    "CHI2",
+    "CANDIDATES",
+    "STATES",
+    "PULLS",
+    "DATASET_SCHEMAS",
+    "RUN_SCHEMAS",
+    "COV_COLUMNS",
+    "STATE_COLUMNS",
+    "STATE_LOCATIONS",
+    "TableSpec",
+    "TABLE_SPECS",
+    "spec_for",
+    "pack_covariance",
+    "unpack_covariance",
+    "table_from_columns",
+]
+
+_F64 = pa.float64()
+_I64 = pa.int64()
+_I16 = pa.int16()
+_STR = pa.string()
+
+#: The five track parameters in state-vector order (DESIGN §2).
+STATE_COLUMNS: tuple[str, ...] = ("x", "y", "tx", "ty", "qop")
+
+#: The 15 upper-triangle covariance elements, row-major: c00 c01 … c04 c11 … c44 (DESIGN §2).
+COV_COLUMNS: tuple[str, ...] = tuple(f"c{i}{j}" for i in range(5) for j in range(i, 5))
+
+#: Values of the ``location`` column of ``states`` and ``pulls`` (DESIGN §8).
+STATE_LOCATIONS: tuple[str, ...] = ("first_hit", "last_hit", "beamline")
+
+_TRIU = np.triu_indices(5)
+
+
+def _field(name: str, type_: pa.DataType, nullable: bool = False) -> pa.Field:
+    return pa.field(name, type_, nullable=nullable)
+
+
+def _schema(table: str, fields: list[pa.Field]) -> pa.Schema:
+    return pa.schema(fields, metadata={"pkf.table": table})
+
+
+#: ``hits``: one row per measurement. z, u, v in mm; sigma_u, sigma_v in mm.
+#: v and sigma_v are null on strip layers.
+HITS = _schema(
+    "hits",
+    [
+        _field("event_id", _I64),
+        _field("hit_id", _I64),
+        _field("layer", _I16),
+        _field("z", _F64),
+        _field("u", _F64),
+        _field("v", _F64, nullable=True),
+        _field("sigma_u", _F64),
+        _field("sigma_v", _F64, nullable=True),
+    ],
+)
+
+#: ``particles``: MC truth, one row per generated particle. mass, px, py, pz in MeV;
+#: vx, vy, vz (production vertex) in mm. particle_id > 0; parent_id 0 for primaries;
+#: interaction = pileup vertex index.
+PARTICLES = _schema(
+    "particles",
+    [
+        _field("event_id", _I64),
+        _field("particle_id", _I64),
+        _field("pdg", pa.int32()),
+        _field("charge", pa.int8()),
+        _field("mass", _F64),
+        _field("vx", _F64),
+        _field("vy", _F64),
+        _field("vz", _F64),
+        _field("px", _F64),
+        _field("py", _F64),
+        _field("pz", _F64),
+        _field("parent_id", _I64),
+        _field("interaction", _I16),
+        _field("from_signal", pa.bool_()),
+    ],
+)
+
+#: ``mc_hits``: MC truth per hit. particle_id 0 for noise hits; x, y, z in mm and the
+#: true local state tx, ty, qop (1/MeV) at the layer after material effects; tx, ty,
+#: qop are null for noise hits.
+MC_HITS = _schema(
+    "mc_hits",
+    [
+        _field("event_id", _I64),
+        _field("hit_id", _I64),
+        _field("particle_id", _I64),
+        _field("x", _F64),
+        _field("y", _F64),
+        _field("z", _F64),
+        _field("tx", _F64, nullable=True),
+        _field("ty", _F64, nullable=True),
+        _field("qop", _F64, nullable=True),
+    ],
+)
+
+#: ``chi2``: one row per (event, track, fitter). status is ``ok`` or why the fit
+#: failed (then chi2/chi2_ndf are NaN); mc_particle_id is -1 if unmatched or no MC.
+CHI2 = _schema(
+    "chi2",
+    [
+        _field("event_id", _I64),
+        _field("track_id", _I64),
+        _field("fitter", _STR),
+        _field("n_velo", _I16),
+        _field("n_ut", _I16),
+        _field("n_scifi", _I16),
+        _field("n_outliers", _I16),
+        _field("chi2", _F64),
+        _field("ndf", _I16),
+        _field("chi2_ndf", _F64),
+        _field("status", _STR),
+        _field("mc_particle_id", _I64),
+        _field("match_fraction", _F64),
+        _field("is_ghost", pa.bool_()),
+    ],
+)
+
+#: ``candidates``: one row per hit of each track candidate from pattern recognition.
+CANDIDATES = _schema(
+    "candidates",
+    [
+        _field("event_id", _I64),
+        _field("track_id", _I64),
+        _field("hit_id", _I64),
+    ],
+)
+
+#: ``states``: fitted state (x, y in mm at plane z in mm; tx, ty; qop in 1/MeV) and its
+#: covariance (15 upper-triangle elements, :data:`COV_COLUMNS`) at each location.
+STATES = _schema(
+    "states",
+    [
+        _field("event_id", _I64),
+        _field("track_id", _I64),
+        _field("fitter", _STR),
+        _field("location", _STR),
+        _field("z", _F64),
+        *(_field(c, _F64) for c in STATE_COLUMNS),
+        *(_field(c, _F64) for c in COV_COLUMNS),
+    ],
+)
+
+#: ``pulls``: matched tracks only. p_true in MeV; res_* = fit − true (units of the
+#: parameter), pull_* = res / σ (dimensionless).
+PULLS = _schema(
+    "pulls",
+    [
+        _field("event_id", _I64),
+        _field("track_id", _I64),
+        _field("fitter", _STR),
+        _field("location", _STR),
+        _field("p_true", _F64),
+        *(_field(f"res_{c}", _F64) for c in STATE_COLUMNS),
+        *(_field(f"pull_{c}", _F64) for c in STATE_COLUMNS),
+    ],
+)
+
+#: Tables of a dataset directory, by table name (file stem).
+DATASET_SCHEMAS: dict[str, pa.Schema] = {"hits": HITS, "particles": PARTICLES, "mc_hits": MC_HITS}
+#: Tables of a run directory, by table name (file stem).
+RUN_SCHEMAS: dict[str, pa.Schema] = {
+    "chi2": CHI2,
+    "candidates": CANDIDATES,
+    "states": STATES,
+    "pulls": PULLS,
+}
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """Validation rules of one table, beyond its schema (used by :mod:`pkf.io.reader`).
+
+    Every table must also be sorted by ``event_id`` and have no nulls in
+    non-nullable columns.
+
+    Attributes:
+        name: table name (file stem).
+        schema: the Arrow schema.
+        unique_key: columns whose combination identifies a row (no duplicates);
+            also the columns shown when an error names a row.
+        finite: float columns that must be finite where not null.
+        positive: numeric columns that must be > 0 where not null.
+        non_negative: numeric columns that must be >= 0 where not null.
+        null_together: groups of columns that must be all null or all non-null in a row.
+        allow_empty: whether a table with zero rows is valid.
+    """
+
+    name: str
+    schema: pa.Schema
+    unique_key: tuple[str, ...]
+    finite: tuple[str, ...] = ()
+    positive: tuple[str, ...] = ()
+    non_negative: tuple[str, ...] = ()
+    null_together: tuple[tuple[str, ...], ...] = ()
+    allow_empty: bool = True
+
+
+#: Validation rules per table name.
+TABLE_SPECS: dict[str, TableSpec] = {
+    "hits": TableSpec(
+        "hits",
+        HITS,
+        unique_key=("event_id", "hit_id"),
+        finite=("z", "u", "v", "sigma_u", "sigma_v"),
+        positive=("sigma_u", "sigma_v"),
+        null_together=(("v", "sigma_v"),),
+        allow_empty=False,
+    ),
+    "particles": TableSpec(
+        "particles",
+        PARTICLES,
+        unique_key=("event_id", "particle_id"),
+        finite=("mass", "vx", "vy", "vz", "px", "py", "pz"),
+        positive=("particle_id",),
+        non_negative=("mass", "parent_id"),
+    ),
+    "mc_hits": TableSpec(
+        "mc_hits",
+        MC_HITS,
+        unique_key=("event_id", "hit_id"),
+        finite=("x", "y", "z", "tx", "ty", "qop"),
+        non_negative=("particle_id",),
+        null_together=(("tx", "ty", "qop"),),
+    ),
+    "chi2": TableSpec("chi2", CHI2, unique_key=("event_id", "track_id", "fitter")),
+    "candidates": TableSpec("candidates", CANDIDATES, unique_key=("event_id", "track_id", "hit_id")),
+    "states": TableSpec("states", STATES, unique_key=("event_id", "track_id", "fitter", "location")),
+    "pulls": TableSpec("pulls", PULLS, unique_key=("event_id", "track_id", "fitter", "location")),
+}
+
+
+def spec_for(schema: pa.Schema) -> TableSpec | None:
+    """Return the :class:`TableSpec` of one of the pkf schemas, or None for another schema.
+
+    The schema is recognised by its ``pkf.table`` metadata and must equal the
+    registered schema field by field.
+    """
+    meta = schema.metadata or {}
+    name = meta.get(b"pkf.table")
+    if name is None:
+        return None
+    spec = TABLE_SPECS.get(name.decode())
+    if spec is None or not spec.schema.equals(schema):
+        return None
+    return spec
+
+
+def pack_covariance(cov: np.ndarray) -> dict[str, np.ndarray]:
+    """Split covariance matrices into the 15 columns ``c00 … c44`` (DESIGN §2).
+
+    Args:
+        cov: array of shape (n, 5, 5) (or (5, 5) for one matrix), in the units of
+            the state (x, y, tx, ty, qop). Only the upper triangle is read.
+
+    Returns:
+        dict from each name of :data:`COV_COLUMNS` to a float64 array of shape (n,)
+        (or a 0-d array for one matrix).
+    """
+    cov = np.asarray(cov, dtype=np.float64)
+    if cov.shape[-2:] != (5, 5):
+        raise ValueError(f"covariance must have shape (n, 5, 5), got {cov.shape}")
+    upper = cov[..., _TRIU[0], _TRIU[1]]
+    return {name: np.array(upper[..., k], order="C") for k, name in enumerate(COV_COLUMNS)}
+
+
+def unpack_covariance(columns: Mapping[str, object] | pa.Table) -> np.ndarray:
+    """Rebuild symmetric (n, 5, 5) covariance matrices from the columns ``c00 … c44``.
+
+    Args:
+        columns: a table (e.g. ``states``) or a mapping holding the 15
+            :data:`COV_COLUMNS` as arrays of length n (numpy or Arrow).
+
+    Returns:
+        float64 array of shape (n, 5, 5), symmetric.
+    """
+    arrays = []
+    for name in COV_COLUMNS:
+        col = columns[name] if not isinstance(columns, pa.Table) else columns.column(name)
+        if isinstance(col, (pa.Array, pa.ChunkedArray)):
+            col = col.to_numpy()
+        arrays.append(np.asarray(col, dtype=np.float64))
+    upper = np.stack(arrays, axis=-1)
+    cov = np.zeros(upper.shape[:-1] + (5, 5), dtype=np.float64)
+    cov[..., _TRIU[0], _TRIU[1]] = upper
+    cov[..., _TRIU[1], _TRIU[0]] = upper
+    return cov
+
+
+def table_from_columns(schema: pa.Schema, columns: Mapping[str, object]) -> pa.Table:
+    """Build a table with exactly ``schema`` from numpy arrays / sequences, one per column.
+
+    Every schema column must be given and no other. Values are converted to the
+    column type (integers must fit). In *nullable* float columns NaN becomes null
+    (so strip hits can pass ``v = nan``); in non-nullable columns NaN is kept and
+    null is refused. Scalars (e.g. ``fitter="parametrized"``) are broadcast to the
+    common length.
+
+    Raises:
+        ValueError: missing/extra columns, different lengths, or nulls in a
+            non-nullable column. (These are programming errors, not bad input.)
+    """
+    names = set(columns)
+    missing = [n for n in schema.names if n not in names]
+    extra = sorted(names - set(schema.names))
+    if missing or extra:
+        raise ValueError(f"table_from_columns: missing columns {missing}, unexpected columns {extra}")
+    lengths = {n: len(v) for n, v in columns.items() if not np.isscalar(v) and not isinstance(v, str)}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"table_from_columns: columns have different lengths {lengths}")
+    n = next(iter(lengths.values()), 1)
+    arrays = []
+    for field in schema:
+        value = columns[field.name]
+        if np.isscalar(value) or isinstance(value, str):
+            value = [value] * n
+        if isinstance(value, (pa.Array, pa.ChunkedArray)):
+            arr = value.cast(field.type)
+        else:
+            from_pandas = field.nullable and pa.types.is_floating(field.type)
+            arr = pa.array(value, type=field.type, from_pandas=from_pandas)
+        if not field.nullable and arr.null_count:
+            raise ValueError(f"table_from_columns: column {field.name!r} has nulls but is not nullable")
+        arrays.append(arr)
+    return pa.Table.from_arrays(arrays, schema=schema)

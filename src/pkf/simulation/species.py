@@ -1,0 +1,45 @@
+"""Particle species: PDG codes, masses [MeV] and charges of what pkf generates."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# PDG 2024 masses in MeV.
+MASS_PION = 139.57039
+MASS_KAON = 493.677
+MASS_PROTON = 938.27208816
+MASS_ELECTRON = 0.51099895
+MASS_MUON = 105.6583755
+MASS_PHI = 1019.461
+MASS_BS = 5366.92
+CTAU_BS = 0.455  # mm (DESIGN §5)
+
+PDG_BS = 531
+PDG_PHI = 333
+PDG_KAON = 321
+
+# name -> (PDG code of the positive particle, mass [MeV], charge sign of that code).
+# Electrons and muons: PDG code 11/13 is the negative lepton.
+SPECIES = {
+    "pion": (211, MASS_PION, +1),
+    "kaon": (321, MASS_KAON, +1),
+    "proton": (2212, MASS_PROTON, +1),
+    "electron": (11, MASS_ELECTRON, -1),
+    "muon": (13, MASS_MUON, -1),
+}
+SPECIES_NAMES = tuple(SPECIES)
+
+# Minimum-bias composition of charged primaries (DESIGN §5): π 80%, K 12%, p 6%, e 1%, μ 1%.
+MINBIAS_FRACTIONS = {"pion": 0.80, "kaon": 0.12, "proton": 0.06, "electron": 0.01, "muon": 0.01}
+
+
+SPECIES_PDG = np.array([SPECIES[n][0] for n in SPECIES_NAMES], dtype=np.int32)
+SPECIES_MASS = np.array([SPECIES[n][1] for n in SPECIES_NAMES], dtype=np.float64)
+SPECIES_SIGN = np.array([SPECIES[n][2] for n in SPECIES_NAMES], dtype=np.int32)
+
+
+def species_arrays(species_index: np.ndarray, charges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """PDG codes (int32) and masses [MeV] for species indices (into SPECIES_NAMES) with
+    electric charges ±1."""
+    sign = SPECIES_SIGN[species_index] * np.sign(charges).astype(np.int32)
+    return (SPECIES_PDG[species_index] * sign).astype(np.int32), SPECIES_MASS[species_index]
