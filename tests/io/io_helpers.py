@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pkf.errors import InputError
-from pkf.io import HITS, MC_HITS, PARTICLES, atomic_write_json, atomic_write_table, table_from_columns
+from pkf.io import HITS, MC_HITS, PARTICLES, atomic_write_json, table_from_columns
 
 #: Toy geometry: two pixel layers then two strip layers [mm].
 LAYER_Z = np.array([0.0, 10.0, 20.0, 30.0])

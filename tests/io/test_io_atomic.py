@@ -40,6 +40,16 @@ def test_atomic_write_table_replaces_and_leaves_no_temp(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["t.parquet"]
 
 
+def test_atomic_write_table_refuses_nulls_in_required_columns(tmp_path):
+    hits = make_tables(1)["hits"]
+    u = hits.column("u").to_pylist()
+    u[0] = None
+    bad = hits.set_column(4, "u", pa.array(u))
+    with pytest.raises(ValueError, match="'u' with null"):
+        atomic_write_table(bad, tmp_path / "hits.parquet", schema=HITS)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_atomic_write_table_failure_keeps_previous_file(tmp_path, monkeypatch):
     path = tmp_path / "hits.parquet"
     atomic_write_table(make_tables(1)["hits"], path)

@@ -77,7 +77,8 @@ def test_deflection_is_a_rotation():
     for theta1, theta2 in ((0.01, 0.0), (0.0, 0.02), (0.03, -0.04)):
         ntx, nty = mat.deflect(tx, ty, theta1, theta2)
         d2 = np.array([ntx, nty, 1.0]) / math.sqrt(1 + ntx * ntx + nty * nty)
-        assert math.acos(min(1.0, float(d @ d2))) == pytest.approx(math.hypot(theta1, theta2), rel=1e-6)
+        angle = math.acos(min(1.0, float(d @ d2)))
+        assert angle == pytest.approx(math.hypot(theta1, theta2), rel=1e-6)
     assert mat.deflect(tx, ty, 0.0, 0.0) == (tx, ty)
     # a deflection past 90° from z is flagged with infinite slopes
     assert math.isinf(mat.deflect(0.0, 0.0, 2.0, 0.0)[0])

@@ -98,9 +98,10 @@ def test_forward_then_backward_returns_to_start():
 
 def test_propagate_many_matches_single():
     states = np.array([[1.0, 2.0, 0.1, -0.05, 1 / 5000.0], [-3.0, 0.0, -0.2, 0.1, -1 / 2000.0]])
-    many = rk4_propagate_many(states, 2300.0, 7800.0, 100.0, *DIPOLE_FIELD.args)
+    args = DIPOLE_FIELD.args
+    many = rk4_propagate_many(states, 2300.0, 7800.0, 100.0, *args)
     for row, state in zip(many, states):
-        np.testing.assert_array_equal(row, rk4_propagate(state, 2300.0, 7800.0, 100.0, *DIPOLE_FIELD.args))
+        np.testing.assert_array_equal(row, rk4_propagate(state, 2300.0, 7800.0, 100.0, *args))
 
 
 # --- Jacobian ----------------------------------------------------------------------
@@ -142,7 +143,8 @@ def test_jacobian_matches_finite_differences_uniform(p, q, tx, ty):
 
 @pytest.mark.parametrize("q", (+1, -1))
 @pytest.mark.parametrize("p", (3000.0, 10000.0, 100000.0))
-@pytest.mark.parametrize("x, y, tx, ty", ((300.0, -150.0, 0.12, -0.06), (-50.0, 400.0, -0.02, 0.15)))
+@pytest.mark.parametrize("x, y, tx, ty", ((300.0, -150.0, 0.12, -0.06),
+                                          (-50.0, 400.0, -0.02, 0.15)))
 def test_jacobian_matches_finite_differences_dipole(p, q, x, y, tx, ty):
     """UT → SciFi through the analytic dipole: every element, including ∂(tx,ty)/∂(x,y)."""
     state = np.array([x, y, tx, ty, q / p])

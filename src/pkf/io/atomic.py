@@ -80,6 +80,10 @@ def atomic_write_table(table: pa.Table, path: str | os.PathLike, *, schema: pa.S
 
     Returns:
         the destination path.
+
+    Raises:
+        ValueError: with ``schema``, a non-nullable column holds nulls (raised by
+            ``Table.cast``; a bug in the caller: the reader would refuse the file).
     """
     path = Path(path)
     if schema is not None:

@@ -489,7 +489,7 @@ def validate_hit_layers(
             row,
             "z",
             key,
-            f"is {z[row]!r} mm but layer {layer[row]} is at z = {expected[row]!r} mm",
+            f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected[row])!r} mm",
         )
     strip = layer_kind[layer] == 1
     v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
@@ -574,7 +574,9 @@ def validate_consistency(
         )
         if row is not None:
             hits_name = str(sources.get("hits", "hits"))
-            raise _row_error(src_mc, mc_hits, row, "hit_id", key, f"has no hit with the same event_id, hit_id in {hits_name}")
+            raise _row_error(
+                src_mc, mc_hits, row, "hit_id", key, f"has no hit with the same event_id, hit_id in {hits_name}"
+            )
         if particles is not None:
             pid = mc_hits.column("particle_id").to_numpy()
             row = _missing_pairs(

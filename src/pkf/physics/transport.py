@@ -189,8 +189,10 @@ def _stage_derivative(fjac, d, kprev, c, kout):
         m4 = 1.0 if j == 4 else 0.0
         kout[0, j] = m2
         kout[1, j] = m3
-        kout[2, j] = fjac[0, 0] * m0 + fjac[0, 1] * m1 + fjac[0, 2] * m2 + fjac[0, 3] * m3 + fjac[0, 4] * m4
-        kout[3, j] = fjac[1, 0] * m0 + fjac[1, 1] * m1 + fjac[1, 2] * m2 + fjac[1, 3] * m3 + fjac[1, 4] * m4
+        kout[2, j] = (fjac[0, 0] * m0 + fjac[0, 1] * m1 + fjac[0, 2] * m2
+                      + fjac[0, 3] * m3 + fjac[0, 4] * m4)
+        kout[3, j] = (fjac[1, 0] * m0 + fjac[1, 1] * m1 + fjac[1, 2] * m2
+                      + fjac[1, 3] * m3 + fjac[1, 4] * m4)
 
 
 @nb.njit(cache=True)
