@@ -121,3 +121,13 @@ def test_long_tracks_bend_the_right_way(tmp_path):
     assert np.all(np.sign(kicks[:, 0]) == np.sign(kicks[:, 1]))
     # size: Δtx ≈ κ·∫B dl / p = 0.2998·4120/5000 ≈ 0.25
     assert np.median(np.abs(kicks[:, 0])) == pytest.approx(0.299792458 * 4120 / 5000, rel=0.1)
+
+
+def test_output_passes_the_validating_reader(minbias_dataset):
+    from pkf.io.reader import open_dataset, validate_consistency
+
+    geometry = load_geometry("lhcb-like")
+    ds = open_dataset(minbias_dataset, layer_z=geometry.layer_z, layer_kind=geometry.layer_kind)
+    assert ds.has_mc
+    validate_consistency(ds.hits, ds.particles, ds.mc_hits)
+    assert ds.hits.num_rows == ds.mc_hits.num_rows

@@ -204,7 +204,10 @@ def staged_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Iterato
             atomic_write_json(meta, tmp / "meta.json")
     """
     final = check_output_dir(final_path, overwrite)
-    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    except OSError as exc:
+        raise InputError(f"{final}: cannot create the output directory here: {exc.strerror}") from None
     try:
         os.chmod(staging, 0o777 & ~_umask())
         yield staging
