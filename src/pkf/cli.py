@@ -14,14 +14,12 @@ from pathlib import Path
 import click
 
 import pkf
-from pkf.errors import InputError
+from pkf.errors import InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
+from pkf.fit.fitters import FITTER_NAMES
+from pkf.pipeline.reconstruct import PATTERNS
 from pkf.simulation.generators import GENERATORS
 from pkf.simulation.species import SPECIES_NAMES
-
-
-class NotBuiltYet(Exception):
-    """A stage of the pipeline that does not exist yet: say so, never make numbers up."""
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -62,10 +60,39 @@ def _not_built(stage: str, issue: int) -> None:
     raise NotBuiltYet(f"pkf {stage}: not built yet (tracked in issue #{issue}); no output was written")
 
 
-@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
-def reconstruct() -> None:
-    """Reconstruct DATASET into RUN (not built yet)."""
-    _not_built("reconstruct", 3)
+@cli.command()
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run directory to create.")
+@click.option("--fitter", "fitters", multiple=True, type=click.Choice(FITTER_NAMES),
+              help="Fitter(s) to run; repeat for several. Default: parametrized.")
+@click.option("--pattern", default="triplet", show_default=True, type=click.Choice(PATTERNS),
+              help="Pattern recognition: hit triplets, or ideal grouping by MC particle.")
+@click.option("--params", default=None, help="Parameter file of the parametrized fitter.")
+@click.option("--outlier-chi2", default=9.0, show_default=True, type=float,
+              help="Remove a node whose χ² exceeds this (1-D equivalent).")
+@click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
+@click.option("--iterations", default=1, show_default=True, type=int,
+              help="Fit iterations; later ones linearise around the previous fit.")
+@click.option("--workers", default=1, show_default=True, type=int, help="Local worker processes.")
+@click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
+def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int, scheduler: str | None,
+                overwrite: bool, **options) -> None:
+    """Reconstruct DATASET into the run directory --out (chi2, states, pulls, run.json)."""
+    from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
+
+    if workers != 1 or scheduler is not None:
+        raise NotBuiltYet("--workers/--scheduler: parallel and Dask execution are not built yet (issue #8)")
+    config = ReconstructionConfig(fitters=fitters or ("parametrized",), **options)
+    run = run_reconstruction(dataset, out, config, overwrite=overwrite)
+    for name, t in run["timing"]["fit"].items():
+        click.echo(f"{name}: {run['counts']['tracks'][name]} tracks fitted, "
+                   f"{t['tracks_per_s'] or 0:.0f} tracks/s, {t['ns_per_node'] or 0:.0f} ns/node")
+    if "pattern" in run:
+        pat = run["pattern"]
+        click.echo(f"pattern: efficiency {pat['efficiency']}, ghost rate {pat['ghost_rate']}, "
+                   f"clone rate {pat['clone_rate']}")
+    click.echo(f"wrote {out}")
 
 
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})

@@ -6,3 +6,10 @@ class InputError(Exception):
 
     The CLI prints it on stderr and exits with code 2 (DESIGN §1.1, §13).
     """
+
+
+class NotBuiltYet(Exception):
+    """A stage or option of the pipeline that does not exist yet.
+
+    The CLI says so on stderr and exits with code 1; pkf never makes numbers up.
+    """

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from pkf.geometry.acceptance import in_active_area
 from pkf.geometry.detector import KIND_PIXEL, SIDE_LEFT, SIDE_RIGHT, Geometry
 from pkf.physics.materials import (
     SI_X0_MM,
@@ -31,22 +32,6 @@ from pkf.physics.transport import rk4_propagate_scalar
 
 #: Longest Runge–Kutta step [mm]; transport also checks the envelope after each one.
 SIMULATION_MAX_STEP = 100.0
-
-
-@nb.njit(cache=True)
-def in_active_area(x, y, half_x, half_y, hole_radius, hole_half_x, hole_half_y, side, overlap):
-    """True if (x, y) [mm] lies on the plane's sensitive/material area."""
-    if abs(x) > half_x or abs(y) > half_y:
-        return False
-    if hole_radius > 0.0 and x * x + y * y < hole_radius * hole_radius:
-        return False
-    if hole_half_x > 0.0 and abs(x) < hole_half_x and abs(y) < hole_half_y:
-        return False
-    if side == SIDE_LEFT and x > overlap:
-        return False
-    if side == SIDE_RIGHT and x < -overlap:
-        return False
-    return True
 
 
 @dataclass

@@ -1,0 +1,68 @@
+"""The extrapolator interface of the Kalman core and its registry (DESIGN §8, §9).
+
+An extrapolator is a typed NamedTuple of arrays and numbers (its "context") plus a
+compiled step function registered for that NamedTuple class:
+
+    step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work) -> status
+
+which transports ``state_in`` (x, y, tx, ty, q/p) at z_from [mm] to z_to, writes the
+transported state, the transport Jacobian F = ∂state_out/∂state_in (5×5) and the
+process noise Q (5×5, added at z_to: C_out = F·C·Fᵀ + Q), and returns a status code
+(`STATUS_OK` or a failure). ``work`` is (4, 5, 5) float64 scratch.
+
+Material convention shared by every extrapolator: the state at a plane is the state
+*downstream* of that plane's material, so a step between z1 < z2 (in either
+direction) includes the material of exactly the planes with z1 < z_plane ≤ z2.
+
+The core calls `extrapolate(ext, ...)`; numba resolves it at compile time to the step
+registered for ``type(ext)``, so one compiled Kalman core serves every extrapolator
+and is cached on disk per extrapolator type.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+from numba.extending import overload
+
+# Track status codes (the `status` column of the chi2 table says them in words).
+STATUS_OK = 0
+STATUS_TOO_FEW_HITS = 1
+STATUS_EXTRAPOLATION_FAILED = 2
+STATUS_NOT_POSITIVE_DEFINITE = 3
+STATUS_BELOW_P_MIN = 4
+STATUS_NO_SEED = 5
+
+STATUS_NAMES = (
+    "ok",
+    "too few hits",
+    "extrapolation failed",
+    "covariance not positive definite",
+    "momentum below the parametrization's p_min",
+    "no seed estimate",
+)
+
+_STEP_FUNCTIONS: dict[type, object] = {}
+
+
+def register_extrapolator(context_class: type, step_function) -> None:
+    """Make `step_function` (an njit function) the step of extrapolators of `context_class`."""
+    _STEP_FUNCTIONS[context_class] = step_function
+
+
+def extrapolate(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
+    """Dispatch to the registered step of ``type(ext)`` (usable inside numba code only)."""
+    raise NotImplementedError("extrapolate() is resolved inside compiled code")
+
+
+@overload(extrapolate)
+def _extrapolate_overload(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
+    if not isinstance(ext, nb.types.BaseNamedTuple):
+        return None
+    step = _STEP_FUNCTIONS.get(ext.instance_class)
+    if step is None:
+        return None
+
+    def implementation(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
+        return step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work)
+
+    return implementation

@@ -1,0 +1,169 @@
+"""Track batches (CSR) built from hits and candidates, and the Python entry point of the fit.
+
+`TrackBatch.from_candidates` turns candidate hit lists into the node arrays of the
+Kalman core (vectorised, no per-hit Python loop); `fit_batch` seeds, fits and adds
+the beamline state for any extrapolator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2 as chi2_distribution
+
+from pkf.fit.beamline import beamline_states
+from pkf.fit.extrapolator import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
+from pkf.fit.kalman import SMOOTHER_WEIGHTED_MEAN, fit_tracks
+from pkf.fit.seed import seed_tracks
+from pkf.geometry.detector import KIND_PIXEL, Geometry
+
+
+@dataclass
+class TrackBatch:
+    """Tracks as CSR node arrays, nodes sorted by z within each track.
+
+    offsets (T+1); per node: z [mm], layer, hit_row (row in the hits table), n_meas
+    (1 strip, 2 pixel), hx/hy (n, 2) measurement directions, m (n, 2) measured values
+    [mm], sigma (n, 2) errors [mm].
+    """
+
+    offsets: np.ndarray
+    z: np.ndarray
+    layer: np.ndarray
+    hit_row: np.ndarray
+    n_meas: np.ndarray
+    hx: np.ndarray
+    hy: np.ndarray
+    m: np.ndarray
+    sigma: np.ndarray
+
+    @property
+    def n_tracks(self) -> int:
+        return self.offsets.size - 1
+
+    @property
+    def n_nodes(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+    @classmethod
+    def from_candidates(cls, geometry: Geometry, track_index: np.ndarray, hit_row: np.ndarray,
+                        layer: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_u: np.ndarray,
+                        sigma_v: np.ndarray, n_tracks: int) -> TrackBatch:
+        """Nodes from (track_index, hit_row) pairs; hit columns are indexed by hit_row.
+
+        Nodes are sorted by (track, z); every track index in [0, n_tracks) may appear.
+        """
+        layer_of = layer[hit_row].astype(np.int64)
+        order = np.lexsort((geometry.layer_z[layer_of], track_index))
+        track_index = track_index[order]
+        hit_row = hit_row[order]
+        layer_of = layer_of[order]
+        counts = np.bincount(track_index, minlength=n_tracks)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        pixel = geometry.layer_kind[layer_of] == KIND_PIXEL
+        n = hit_row.size
+        hx = np.zeros((n, 2))
+        hy = np.zeros((n, 2))
+        hx[:, 0] = geometry.layer_cos[layer_of]
+        hy[:, 0] = geometry.layer_sin[layer_of]
+        hy[:, 1] = 1.0
+        m = np.zeros((n, 2))
+        sigma = np.ones((n, 2))
+        m[:, 0] = u[hit_row]
+        sigma[:, 0] = sigma_u[hit_row]
+        m[pixel, 1] = v[hit_row][pixel]
+        sigma[pixel, 1] = sigma_v[hit_row][pixel]
+        return cls(offsets, geometry.layer_z[layer_of].copy(), layer_of, hit_row,
+                   np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma)
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Options of the Kalman fit (DESIGN §8): outlier χ² cut and maximum number removed,
+    iterations (the 2nd and later linearise around the previous optimal states), and the
+    combination method (weighted mean, or the RTS smoother)."""
+
+    outlier_chi2: float = 9.0
+    max_outliers: int = 2
+    iterations: int = 1
+    smoother: int = SMOOTHER_WEIGHTED_MEAN
+
+    def outlier_cuts(self) -> np.ndarray:
+        """Cuts on a node's standardised χ² for 1-D and 2-D nodes: `outlier_chi2` for 1-D,
+        and for 2-D the value with the same tail probability (9 → 11.83)."""
+        p_value = chi2_distribution.sf(self.outlier_chi2, 1)
+        return np.array([self.outlier_chi2, chi2_distribution.isf(p_value, 2)])
+
+
+@dataclass
+class FitResult:
+    """Output of `fit_batch`: per node optimal states/covariances, χ² contributions and
+    activity (False: removed as outlier); per track status, χ², ndf, outliers, and the
+    states at the first hit, last hit and beamline (z, state (T, 5), cov (T, 5, 5))."""
+
+    node_state: np.ndarray
+    node_cov: np.ndarray
+    node_chi2: np.ndarray
+    node_active: np.ndarray
+    status: np.ndarray
+    chi2: np.ndarray
+    ndf: np.ndarray
+    n_outliers: np.ndarray
+    locations: dict = field(default_factory=dict)
+
+    def status_names(self) -> np.ndarray:
+        return np.array(STATUS_NAMES, dtype=object)[self.status]
+
+
+def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seed states (T, 5) at each track's first node, seed covariances and q/p variances."""
+    seeds = np.empty((batch.n_tracks, 5))
+    covs = np.empty((batch.n_tracks, 5, 5))
+    qop_var = np.empty(batch.n_tracks)
+    seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+                *field.args, seeds, covs, qop_var)
+    return seeds, covs, qop_var
+
+
+def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.ndarray,
+              seed_covs: np.ndarray, beamline_extrapolator=None) -> FitResult:
+    """Fit every track of `batch` with `extrapolator` from the given seeds."""
+    n = batch.z.size
+    t = batch.n_tracks
+    node_state = np.full((n, 5), np.nan)
+    node_cov = np.full((n, 5, 5), np.nan)
+    node_chi2 = np.full(n, np.nan)
+    node_active = np.ones(n, dtype=np.bool_)
+    status = np.zeros(t, dtype=np.int64)
+    chi2 = np.full(t, np.nan)
+    ndf = np.zeros(t, dtype=np.int64)
+    n_outliers = np.zeros(t, dtype=np.int64)
+    fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m,
+               batch.sigma, np.ascontiguousarray(seeds), np.ascontiguousarray(seed_covs),
+               options.outlier_cuts(), int(options.max_outliers), int(options.iterations),
+               int(options.smoother), node_state, node_cov, node_chi2, node_active, status, chi2,
+               ndf, n_outliers)
+    bad_seed = ~np.all(np.isfinite(seeds), axis=1)
+    status[bad_seed] = STATUS_NO_SEED
+    result = FitResult(node_state, node_cov, node_chi2, node_active, status, chi2, ndf, n_outliers)
+    has_nodes = batch.n_nodes > 0
+    first = np.where(has_nodes, batch.offsets[:-1], 0)
+    last = np.where(has_nodes, batch.offsets[1:] - 1, 0)
+    result.locations["first_hit"] = (batch.z[first], node_state[first], node_cov[first])
+    result.locations["last_hit"] = (batch.z[last], node_state[last], node_cov[last])
+    if beamline_extrapolator is not None:
+        ok = status == STATUS_OK
+        bz = np.full(t, np.nan)
+        bs = np.full((t, 5), np.nan)
+        bc = np.full((t, 5, 5), np.nan)
+        idx = np.flatnonzero(ok)
+        z_sel = np.ascontiguousarray(batch.z[first][idx])
+        s_out = np.empty((idx.size, 5))
+        c_out = np.empty((idx.size, 5, 5))
+        zb = np.empty(idx.size)
+        beamline_states(beamline_extrapolator, z_sel, np.ascontiguousarray(node_state[first][idx]),
+                        np.ascontiguousarray(node_cov[first][idx]), zb, s_out, c_out)
+        bz[idx], bs[idx], bc[idx] = zb, s_out, c_out
+        result.locations["beamline"] = (bz, bs, bc)
+    return result
