@@ -17,8 +17,8 @@ Per iteration:
    update Y += h·hᵀ/σ², y += h·m/σ²; propagate Y ← Fᵀ(I + Y·Q)⁻¹·Y·F,
    y ← Fᵀ(I + Y·Q)⁻¹·(y − Y·a).
 3. Optimal state at every node = weighted mean of the forward prediction and the
-   backward filtered state: C = (I + P·Y)⁻¹·P, x = (I + P·Y)⁻¹·(x_p + P·y), i.e.
-   C⁻¹ = P⁻¹ + Y (paper §3). `SMOOTHER_RTS` computes the same states with the
+   backward filtered state (paper §3): C = (P⁻¹ + Y)⁻¹, x = C·(P⁻¹·x_p + y), with
+   equilibrated Cholesky inverses. `SMOOTHER_RTS` computes the same states with the
    Rauch–Tung–Striebel smoother instead; a test checks they agree.
 4. Track χ² = the sum of the forward filter's increments r_k|k−1ᵀ S_k⁻¹ r_k|k−1 (paper
    eq. 9), which for a linear Gaussian model equals the smoothed measurement residuals'
@@ -51,7 +51,7 @@ from pkf.fit.extrapolator import (
     STATUS_TOO_FEW_HITS,
     extrapolate,
 )
-from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, symmetrise
+from pkf.fit.linalg import copy5, copy55, invert_spd, matmul55, sandwich, symmetrise
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -166,7 +166,9 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     tmp = mats[0]
     tmp2 = mats[1]
     # ---- forward filter
-    copy5(seed, pred[0])
+    # The seed prior: at the pattern estimate, or, once a previous fit exists, at its
+    # optimal first state, so that the prior biases nothing at convergence.
+    copy5(ref[0] if use_reference else seed, pred[0])
     copy55(seed_cov, pred_cov[0])
     for k in range(n):
         if k > 0:
@@ -202,7 +204,7 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
                     return STATUS_NOT_POSITIVE_DEFINITE, chi2
                 chi2 += increment
     if smoother == SMOOTHER_RTS:
-        status = _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5[:5], perm)
+        status = _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5, perm)
     else:
         status = _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, jac,
                                                noise, offset, out_state, out_cov, mats, vec5, perm)
@@ -215,6 +217,7 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
     """Backward information filter and weighted-mean combination (see module docstring)."""
     info = mats[2]  # Y
     info_vec = vec5[5:10]  # y
+    spd_vec = vec5[10:20]
     vec5 = vec5[:5]
     for i in range(5):
         info_vec[i] = 0.0
@@ -238,24 +241,23 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
                 info[1, 1] += h1 * h1 * w
                 info_vec[0] += h0 * m[k, j] * w
                 info_vec[1] += h1 * m[k, j] * w
-        # combination: A = I + P·Y; C = A⁻¹·P; x = A⁻¹·(x_p + P·y)
-        p = pred_cov[k]
-        matmul55(p, info, a)
-        for i in range(5):
-            a[i, i] += 1.0
-        if not _invert_general(a, inv, lu, perm):
+        # combination in information form: C = (P⁻¹ + Y)⁻¹, x = C·(P⁻¹·x_p + y)
+        if not invert_spd(pred_cov[k], inv, lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
-        matmul55(inv, p, out_cov[k])
-        symmetrise(out_cov[k])
         for i in range(5):
-            s = pred[k, i]
+            s = info_vec[i]
             for j in range(5):
-                s += p[i, j] * info_vec[j]
+                s += inv[i, j] * pred[k, j]
             vec5[i] = s
+        for i in range(5):
+            for j in range(5):
+                a[i, j] = inv[i, j] + info[i, j]
+        if not invert_spd(a, out_cov[k], lu, spd_vec):
+            return STATUS_NOT_POSITIVE_DEFINITE
         for i in range(5):
             s = 0.0
             for j in range(5):
-                s += inv[i, j] * vec5[j]
+                s += out_cov[k, i, j] * vec5[j]
             out_state[k, i] = s
         for i in range(5):
             if not out_cov[k, i, i] > 0.0:
@@ -304,8 +306,10 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
 
 
 @nb.njit(cache=True)
-def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5, perm):
+def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec, perm):
     """Rauch–Tung–Striebel smoother over the forward pass (the alternative combination)."""
+    vec5 = vec[:5]
+    spd_vec = vec[10:20]
     gain = mats[2]
     inv = mats[3]
     tmp = mats[0]
@@ -315,7 +319,7 @@ def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, ma
     copy55(filt_cov[n - 1], out_cov[n - 1])
     for k in range(n - 2, -1, -1):
         # A = P_k|k · F_k+1ᵀ · P_k+1|k⁻¹
-        if not _invert_general(pred_cov[k + 1], inv, lu, perm):
+        if not invert_spd(pred_cov[k + 1], inv, lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
         for i in range(5):
             for j in range(5):
@@ -373,7 +377,7 @@ def fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node
     ref = np.empty((max_nodes, 5))
     work = np.empty((4, 5, 5))
     mats = np.empty((6, 5, 5))
-    vec5 = np.empty(10)
+    vec5 = np.empty(20)
     perm = np.empty(5, dtype=np.int64)
     for t in range(n_tracks):
         lo = offsets[t]

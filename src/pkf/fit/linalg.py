@@ -87,14 +87,22 @@ def symmetrise(a):
 
 @nb.njit(cache=True)
 def invert_spd(a, out, work, vec):
-    """out = a⁻¹ for a symmetric positive-definite 5×5 matrix via Cholesky a = L·Lᵀ.
+    """out = a⁻¹ for a symmetric positive-definite 5×5 matrix.
 
-    work (5×5) holds L, vec (5) is scratch. Returns False (out undefined) when a is not
-    positive definite.
+    The matrix is first equilibrated, a′ = D·a·D with D = diag(1/√a_ii), so that the
+    result is accurate however differently the parameters are scaled (mm, slopes,
+    1/MeV), then inverted by Cholesky a′ = L·Lᵀ, and a⁻¹ = D·a′⁻¹·D. work (5×5) and
+    vec (10) are scratch. Returns False (out undefined) if a is not positive definite.
     """
     n = 5
+    scale = vec[5:10]
+    col = vec[0:5]
+    for i in range(n):
+        if not a[i, i] > 0.0:
+            return False
+        scale[i] = 1.0 / math.sqrt(a[i, i])
     for j in range(n):
-        s = a[j, j]
+        s = a[j, j] * scale[j] * scale[j]
         for k in range(j):
             s -= work[j, k] * work[j, k]
         if not s > 0.0:
@@ -102,22 +110,25 @@ def invert_spd(a, out, work, vec):
         d = math.sqrt(s)
         work[j, j] = d
         for i in range(j + 1, n):
-            t = a[i, j]
+            t = a[i, j] * scale[i] * scale[j]
             for k in range(j):
                 t -= work[i, k] * work[j, k]
             work[i, j] = t / d
-    for col in range(n):
-        # column col of a⁻¹: solve L·y = e_col, then Lᵀ·x = y
+    for c in range(n):
+        # column c of a′⁻¹: solve L·y = e_c, then Lᵀ·x = y
         for i in range(n):
-            t = 1.0 if i == col else 0.0
+            t = 1.0 if i == c else 0.0
             for k in range(i):
-                t -= work[i, k] * vec[k]
-            vec[i] = t / work[i, i]
+                t -= work[i, k] * col[k]
+            col[i] = t / work[i, i]
         for i in range(n - 1, -1, -1):
-            t = vec[i]
+            t = col[i]
             for k in range(i + 1, n):
-                t -= work[k, i] * out[k, col]
-            out[i, col] = t / work[i, i]
+                t -= work[k, i] * out[k, c]
+            out[i, c] = t / work[i, i]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] *= scale[i] * scale[j]
     symmetrise(out)
     return True
 

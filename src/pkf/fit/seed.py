@@ -112,7 +112,7 @@ def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid
     a[4, 4] += 1.0 / (QOP_PRIOR_SIGMA * QOP_PRIOR_SIGMA)
     inv = np.empty((5, 5))
     work = np.empty((5, 5))
-    vec = np.empty(5)
+    vec = np.empty(10)
     if not invert_spd(a, inv, work, vec):
         for i in range(5):
             out_state[i] = np.nan

@@ -198,6 +198,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                 if not warmed:
                     _warm_up(fitters_ext, batch, seeds, seed_covs, fit_options, beamline_ext)
                     warmed = True
+                chunk_tables = {"chi2": [], "states": [], "pulls": []}
                 for fitter, ext in fitters_ext:
                     with _Clock(timing, f"fit.{fitter.name}") as clock:
                         result = fit_batch(ext, batch, fit_options, seeds, seed_covs, beamline_ext)
@@ -206,13 +207,16 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                     stats["tracks"] += n_tracks
                     stats["nodes"] += int(batch.z.size)
                     counts["tracks"][fitter.name] += int(np.sum(result.status == STATUS_OK))
-                    writers["chi2"].write(_chi2_table(fitter, geometry, batch, result, track_event,
-                                                      track_id, mc_particle, fraction, ghost))
-                    writers["states"].write(_states_table(fitter, result, track_event, track_id))
+                    chunk_tables["chi2"].append(_chi2_table(fitter, geometry, batch, result, track_event,
+                                                            track_id, mc_particle, fraction, ghost))
+                    chunk_tables["states"].append(_states_table(fitter, result, track_event, track_id))
                     if has_mc:
-                        writers["pulls"].write(_pulls_table(
+                        chunk_tables["pulls"].append(_pulls_table(
                             fitter, batch, result, track_event, track_id, mc_particle,
                             hit_truth[lo:hi], particle_momentum))
+                for name, tables in chunk_tables.items():
+                    if tables:
+                        writers[name].write(_sorted(pa.concat_tables(tables)))
                 bar.update(int(np.unique(ev).size))
         for writer in writers.values():
             writer.close()
@@ -229,6 +233,12 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
             run["pattern"] = pattern_metrics(np.concatenate(matched_all), np.concatenate(reconstructible_all))
         atomic_write_json(run, staging / "run.json")
     return run
+
+
+def _sorted(table: pa.Table) -> pa.Table:
+    """Rows ordered by event, track, then fitter and location (run tables are sorted by event)."""
+    keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location") if k in table.column_names]
+    return table.sort_by(keys)
 
 
 def _chunk_bounds(event_id: np.ndarray, events_per_chunk: int) -> list[tuple[int, int]]:

@@ -1,0 +1,928 @@
+"""Hit-triplet fit with multiple scattering and hit uncertainties (DESIGN §7.2).
+
+Implements the triplet fit of Schöning (“the triplet paper”, seeds/001; geometry and
+eq. 1 from Berger, Kozlinskiy, Kiehn, Schöning, NIM A 844 (2017) 135) for many
+triplets at once. Units: mm, MeV, tesla, rad; curvature in 1/mm, q/p in 1/MeV.
+
+Three fits share one geometry table (`triplet_geometry`, one row per triplet):
+
+* **Radius form, MS only** — paper eq. 1 (`triplet_fit_ms`): one scattering kink at the
+  middle hit, hit positions exact, the 3-D radius R3D from the linearisation around the
+  circle through the three hits. R3D does not depend on σ_MS; σ_MS is Highland (eq. 2)
+  at p = κ_c·|B|·R3D afterwards.
+* **Radius form with hit uncertainties** — §2.1.2, App. A and App. C
+  (`triplet_fit_hit_errors`): the hit errors are propagated to the two kink angles and
+  added to the scattering variances; R3D is the root of the App. C cubic (Cardano).
+* **Curvature form** — the same linearised kinks written as functions of the signed
+  3-D curvature κ = ±1/R3D (as traccc does, DESIGN §15):
+  kink(κ) = ψ + ρ·κ with finite ψ, ρ for every triplet, including exactly collinear
+  hits and B = 0 (`triplet_fit_curvature`). It is used where the field is below a
+  threshold (σ_MS then at the seeding momentum p_min) and, on request, everywhere.
+
+`fit_triplets` is the one-call interface (hits → κ, q/p, χ², kinks, direction, status);
+`combine_triplets` / `combine_triplet_chain` give the combined χ² of conjoined triplets
+(paper eqs. 3–6) used when merging triplets into tracklets.
+
+Conventions (all per triplet; hits are ordered along the motion, 0 → 1 → 2):
+
+* The fit frame has its z′ axis along the field at the middle hit, B̂ (rows of the
+  rotation matrix: e1, e2, e3 = B̂, right-handed, x′ = R·x). Below the field threshold
+  the axis is B̂ (or the lab y axis when B = 0) made orthogonal to the chord x2 − x0:
+  any axis is as good for isotropic scattering, and one orthogonal to the track keeps
+  sin ϑ ≈ 1 (curvature is then not a momentum measurement).
+* Transverse turning is counted positive counter-clockwise about +z′ (right-handed
+  about B̂). A positive charge turns clockwise, so the **signed curvature κ has the sign
+  of the charge**: κ = q·κ_c·|B|/p, q/p = κ/(κ_c·|B|), κ_c = 0.299792458 MeV/(T·mm)
+  (a 1 GeV particle in 1 T has R3D = 3335.64 mm).
+* The transverse kink Φ_MS = φ_out − φ_in (counter-clockwise positive) and the
+  longitudinal kink Θ_MS = θ_out − θ_in (θ = polar angle from +z′) at the middle hit.
+  Scattering is isotropic: var(Φ_MS) = σ_MS²/sin²ϑ, var(Θ_MS) = σ_MS².
+* Highland (DESIGN §4) for unit charge with a mass hypothesis (pion by default), with
+  path length t = (x/X0)·N, N = √(1 + tx² + ty²) from the circle-solution direction at
+  the middle hit (detector planes are normal to z; `x_over_x0` is the plane thickness).
+* ndf = 1: two kink angles, one parameter (R3D or κ) — “assuming energy conservation
+  the fit has one degree of freedom” (paper §2.1.1). With hit errors the effective
+  χ² of §2.1.2 keeps one degree of freedom (the hit positions are not fitted). With
+  `straight_below_threshold`, κ ≡ 0 below the field threshold and ndf = 2.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from pkf.physics.materials import highland_theta0
+from pkf.physics.transport import C_LIGHT
+from pkf.simulation.species import MASS_PION
+
+__all__ = [
+    "C_LIGHT",
+    "MASS_PION",
+    "DEFAULT_B_THRESHOLD",
+    "DEFAULT_P_MIN",
+    "FORM_RADIUS",
+    "FORM_CURVATURE",
+    "COMBINE_CURVATURE",
+    "COMBINE_RADIUS",
+    "STATUS_DEGENERATE",
+    "STATUS_WEAK_FIELD",
+    "STATUS_CURVATURE_FALLBACK",
+    "STATUS_ROOT_FALLBACK",
+    "STATUS_LARGE_BENDING",
+    "STATUS_NO_VARIANCE",
+    "STATUS_BACKWARD",
+    "STATUS_INVALID",
+    "GEOMETRY_COLUMNS",
+    "N_GEOMETRY_COLUMNS",
+    "TripletFit",
+    "triplet_geometry",
+    "triplet_fit_ms",
+    "triplet_fit_hit_errors",
+    "triplet_fit_curvature",
+    "fit_triplets",
+    "fit_triplets_kernel",
+    "fit_triplet_row",
+    "combine_triplets",
+    "combine_triplet_chain",
+    "solve_cubic",
+    "highland_sigma",
+]
+
+DEFAULT_B_THRESHOLD = 0.05  # T
+DEFAULT_P_MIN = 1000.0  # MeV
+P_MAX = 1.0e8  # MeV: momentum cap for Highland (σ_MS > 0 for straight tracks in a field)
+
+FORM_RADIUS = 0  # paper: eq. 1 / App. C in R3D where |B| ≥ threshold, curvature form below
+FORM_CURVATURE = 1  # curvature form everywhere
+
+COMBINE_CURVATURE = 0  # paper eqs. 5–6 (average of h3D = κ)
+COMBINE_RADIUS = 1  # paper eqs. 3–4 (average of R3D)
+
+# Status bits (int32). STATUS_INVALID is the mask of bits that make a fit unusable.
+STATUS_DEGENERATE = 1  # coincident hits, or a segment along the field axis
+STATUS_WEAK_FIELD = 2  # |B| < threshold: σ_MS at p_min, q/p not measured (qop = 0)
+STATUS_CURVATURE_FALLBACK = 4  # radius form requested but not defined: curvature form used
+STATUS_ROOT_FALLBACK = 8  # no acceptable cubic root: the fixed-point iterate was kept
+STATUS_LARGE_BENDING = 16  # Φ_1C + Φ_2C > π: beyond a half turn, linearisation doubtful
+STATUS_NO_VARIANCE = 32  # zero kink variance (no material, no hit errors)
+STATUS_BACKWARD = 64  # direction at the middle hit ⟂ z: slopes (tx, ty) undefined
+STATUS_INVALID = STATUS_DEGENERATE | STATUS_NO_VARIANCE
+
+# ------------------------------------------------------------------------------------
+# Geometry table columns (triplet_geometry). Φ_iC, R3D_iC, θ_iC, α_i, Φ̃, η, Θ̃, β, ϑ as
+# in DESIGN §7.2 (unsigned circle solution); ψ/ρ the curvature form (signed).
+# ------------------------------------------------------------------------------------
+GEOMETRY_COLUMNS = (
+    "d01", "d12", "d02",          # transverse distances [mm]
+    "z01", "z12",                 # longitudinal distances along B̂ [mm]
+    "r_c",                        # circle radius [mm] (inf for collinear hits)
+    "turn",                       # +1 counter-clockwise about B̂, −1 clockwise
+    "phi1c", "phi2c",             # Φ_1C, Φ_2C: transverse bending angles ≥ 0 [rad]
+    "r3d1c", "r3d2c",             # R3D_1C, R3D_2C [mm] (inf for collinear hits)
+    "theta1c", "theta2c",         # θ_1C, θ_2C polar angles of the segments [rad]
+    "alpha1", "alpha2",           # α_1, α_2
+    "phi_tilde", "eta",           # Φ̃ [rad], η [1/mm]
+    "theta_tilde", "beta",        # Θ̃ [rad], β [1/mm]
+    "vartheta",                   # ϑ = (θ_1C + θ_2C)/2 [rad]
+    "s1", "s2",                   # 3-D arc lengths of the segments [mm]
+    "psi_phi", "rho_phi",         # Φ_MS(κ) = ψ_Φ + ρ_Φ·κ  [rad], [mm]
+    "psi_theta", "rho_theta",     # Θ_MS(κ) = ψ_Θ + ρ_Θ·κ  [rad], [mm]
+    "vhit_phiphi", "vhit_phitheta", "vhit_thetatheta",  # hit errors → kinks [rad²]
+    "bmag",                       # |B| at the middle hit [T]
+    "tx_c", "ty_c",               # circle-solution slopes at the middle hit (lab)
+    "phi01", "phi12",             # azimuths of the chords in the fit frame [rad]
+    "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22",  # lab → fit frame
+    "status",                     # geometry status bits (as float)
+)
+N_GEOMETRY_COLUMNS = len(GEOMETRY_COLUMNS)
+(G_D01, G_D12, G_D02, G_Z01, G_Z12, G_RC, G_TURN, G_PHI1, G_PHI2, G_R3D1, G_R3D2,
+ G_THETA1, G_THETA2, G_ALPHA1, G_ALPHA2, G_PHI_TILDE, G_ETA, G_THETA_TILDE, G_BETA,
+ G_VARTHETA, G_S1, G_S2, G_PSI_PHI, G_RHO_PHI, G_PSI_THETA, G_RHO_THETA, G_VPP, G_VPT,
+ G_VTT, G_BMAG, G_TXC, G_TYC, G_PHI01, G_PHI12, G_ROT, _G_R01, _G_R02, _G_R10, _G_R11,
+ _G_R12, _G_R20, _G_R21, _G_R22, G_STATUS) = range(N_GEOMETRY_COLUMNS)
+
+
+# Output columns of fit_triplet_row / fit_triplets_kernel (see TripletFit).
+FIT_COLUMNS = (
+    "kappa", "var_kappa", "qop", "var_qop", "chi2", "ndf",
+    "kink_phi", "kink_theta", "var_kink_phi", "var_kink_theta",
+    "tx", "ty", "sigma_ms", "status",
+)
+N_FIT_COLUMNS = len(FIT_COLUMNS)
+(F_KAPPA, F_VAR_KAPPA, F_QOP, F_VAR_QOP, F_CHI2, F_NDF, F_KINK_PHI, F_KINK_THETA,
+ F_VAR_KINK_PHI, F_VAR_KINK_THETA, F_TX, F_TY, F_SIGMA_MS, F_STATUS) = range(N_FIT_COLUMNS)
+
+
+# ------------------------------------------------------------------------------------
+# Small numerical helpers
+# ------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _x_over_sin(x):
+    """x/sin x for 0 ≤ x < π (→ 1 at x = 0)."""
+    if x < 1e-4:
+        return 1.0 + x * x / 6.0
+    return x / math.sin(x)
+
+
+@nb.njit(cache=True)
+def _xcotx_minus_one(x):
+    """x·cot x − 1 (≤ 0), series below |x| = 0.1."""
+    if abs(x) < 0.1:
+        x2 = x * x
+        return -x2 * (1.0 / 3.0 + x2 * (1.0 / 45.0 + x2 * (2.0 / 945.0 + x2 / 4725.0)))
+    return x * math.cos(x) / math.sin(x) - 1.0
+
+
+@nb.njit(cache=True)
+def _xcotx_minus_one_over_2x(x):
+    """(x·cot x − 1)/(2x), finite at x = 0 (used as (g − 1)/Φ with x = Φ/2)."""
+    if abs(x) < 0.1:
+        x2 = x * x
+        return -x * (1.0 / 6.0 + x2 * (1.0 / 90.0 + x2 * (1.0 / 945.0 + x2 / 9450.0)))
+    return (x * math.cos(x) / math.sin(x) - 1.0) / (2.0 * x)
+
+
+@nb.njit(cache=True)
+def _wrap(a):
+    """Angle wrapped to (−π, π]."""
+    while a > math.pi:
+        a -= 2.0 * math.pi
+    while a <= -math.pi:
+        a += 2.0 * math.pi
+    return a
+
+
+@nb.njit(cache=True)
+def highland_sigma(p, mass, t):
+    """σ_MS [rad] for unit charge: Highland (paper eq. 2, DESIGN §4) at p [MeV], path t [X0].
+
+    p is capped at 1e8 MeV so that σ_MS stays positive for straight tracks in a field.
+    """
+    return highland_theta0(min(p, P_MAX), mass, 1.0, t)
+
+
+@nb.njit(cache=True)
+def _cbrt(x):
+    if x >= 0.0:
+        return x ** (1.0 / 3.0)
+    return -((-x) ** (1.0 / 3.0))
+
+
+@nb.njit(cache=True)
+def solve_cubic(a3, a2, a1, a0, scale):
+    """Real roots of a3·x³ + a2·x² + a1·x + a0 = 0 (Cardano), for App. C.
+
+    `scale` (> 0) is the expected size of the root of interest: the polynomial is solved
+    in u = x/scale with coefficients normalised to max |c_k| = 1, a negligible leading
+    coefficient (|c3| < 1e-13, e.g. no hit errors in App. C) lowers the degree, and every
+    root is polished with Newton steps on the original polynomial.
+    Returns (n_roots, r0, r1, r2) with the unused roots set to 0.
+    """
+    if not scale > 0.0 or not math.isfinite(scale):
+        scale = 1.0
+    c3 = a3 * scale * scale * scale
+    c2 = a2 * scale * scale
+    c1 = a1 * scale
+    c0 = a0
+    m = max(abs(c3), abs(c2), abs(c1), abs(c0))
+    roots = np.zeros(3)
+    n = 0
+    if m == 0.0 or not math.isfinite(m):
+        return 0, 0.0, 0.0, 0.0
+    c3 /= m
+    c2 /= m
+    c1 /= m
+    c0 /= m
+    if abs(c3) < 1e-13:
+        if abs(c2) < 1e-13:
+            if c1 != 0.0:
+                roots[0] = -c0 / c1
+                n = 1
+        else:
+            disc = c1 * c1 - 4.0 * c2 * c0
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                q = -0.5 * (c1 + math.copysign(sq, c1))
+                roots[0] = q / c2
+                n = 1
+                if q != 0.0:
+                    roots[1] = c0 / q
+                    n = 2
+    else:
+        # depressed cubic t³ + p t + q = 0, u = t − b/3
+        b = c2 / c3
+        c = c1 / c3
+        d = c0 / c3
+        p = c - b * b / 3.0
+        q = 2.0 * b * b * b / 27.0 - b * c / 3.0 + d
+        disc = 0.25 * q * q + p * p * p / 27.0
+        if disc > 0.0:
+            sq = math.sqrt(disc)
+            # numerically stable: take the larger-magnitude cube root first
+            w = _cbrt(-0.5 * q - math.copysign(sq, q))
+            t = w - p / (3.0 * w) if w != 0.0 else 0.0
+            roots[0] = t - b / 3.0
+            n = 1
+        elif p == 0.0:
+            roots[0] = -b / 3.0
+            n = 1
+        else:
+            # three real roots (trigonometric form of Cardano's formula)
+            r = math.sqrt(-p / 3.0)
+            arg = -0.5 * q / (r * r * r)
+            arg = min(1.0, max(-1.0, arg))
+            phi = math.acos(arg) / 3.0
+            for k in range(3):
+                roots[k] = 2.0 * r * math.cos(phi - 2.0 * math.pi * k / 3.0) - b / 3.0
+            n = 3
+    # Newton polish on the normalised polynomial (keeps a step only if |f| decreases)
+    for k in range(n):
+        u = roots[k]
+        for _ in range(4):
+            f = ((c3 * u + c2) * u + c1) * u + c0
+            fp = (3.0 * c3 * u + 2.0 * c2) * u + c1
+            if fp == 0.0:
+                break
+            un = u - f / fp
+            fn = ((c3 * un + c2) * un + c1) * un + c0
+            if abs(fn) < abs(f):
+                u = un
+            else:
+                break
+        roots[k] = u * scale
+    return n, roots[0], roots[1], roots[2]
+
+
+# ------------------------------------------------------------------------------------
+# Geometry (DESIGN §7.2; Berger et al. §3; triplet paper Figure 2, App. A)
+# ------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _fit_frame(h, b, weak, rot):
+    """Rotation lab → fit frame (rows e1, e2, e3) written into rot (3×3). Returns ok."""
+    bmag = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    if bmag > 0.0:
+        ux, uy, uz = b[0] / bmag, b[1] / bmag, b[2] / bmag
+    else:
+        ux, uy, uz = 0.0, 1.0, 0.0
+    if weak:
+        cx = h[2, 0] - h[0, 0]
+        cy = h[2, 1] - h[0, 1]
+        cz = h[2, 2] - h[0, 2]
+        cn = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if cn == 0.0:
+            return False
+        cx /= cn
+        cy /= cn
+        cz /= cn
+        dot = ux * cx + uy * cy + uz * cz
+        vx, vy, vz = ux - dot * cx, uy - dot * cy, uz - dot * cz
+        vn = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if vn < 0.5:  # axis within 30° of the chord: use the lab axis least aligned with it
+            ax, ay, az = abs(cx), abs(cy), abs(cz)
+            if ax <= ay and ax <= az:
+                ux, uy, uz = 1.0, 0.0, 0.0
+            elif ay <= az:
+                ux, uy, uz = 0.0, 1.0, 0.0
+            else:
+                ux, uy, uz = 0.0, 0.0, 1.0
+            dot = ux * cx + uy * cy + uz * cz
+            vx, vy, vz = ux - dot * cx, uy - dot * cy, uz - dot * cz
+            vn = math.sqrt(vx * vx + vy * vy + vz * vz)
+        ux, uy, uz = vx / vn, vy / vn, vz / vn
+    # e1: the lab axis least aligned with e3, made orthogonal; e2 = e3 × e1
+    if abs(ux) <= abs(uy) and abs(ux) <= abs(uz):
+        ax, ay, az = 1.0, 0.0, 0.0
+    elif abs(uy) <= abs(uz):
+        ax, ay, az = 0.0, 1.0, 0.0
+    else:
+        ax, ay, az = 0.0, 0.0, 1.0
+    dot = ax * ux + ay * uy + az * uz
+    e1x, e1y, e1z = ax - dot * ux, ay - dot * uy, az - dot * uz
+    n1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x /= n1
+    e1y /= n1
+    e1z /= n1
+    e2x = uy * e1z - uz * e1y
+    e2y = uz * e1x - ux * e1z
+    e2z = ux * e1y - uy * e1x
+    rot[0, 0], rot[0, 1], rot[0, 2] = e1x, e1y, e1z
+    rot[1, 0], rot[1, 1], rot[1, 2] = e2x, e2y, e2z
+    rot[2, 0], rot[2, 1], rot[2, 2] = ux, uy, uz
+    return True
+
+
+@nb.njit(cache=True)
+def _chord_gradients(c, gphi, gtheta):
+    """∂φ/∂c and ∂θ/∂c of a chord c (fit frame): φ = atan2(c_y, c_x), θ = atan2(d, c_z)."""
+    d2 = c[0] * c[0] + c[1] * c[1]
+    d = math.sqrt(d2)
+    s2 = d2 + c[2] * c[2]
+    gphi[0] = -c[1] / d2
+    gphi[1] = c[0] / d2
+    gphi[2] = 0.0
+    gtheta[0] = c[2] * c[0] / (d * s2)
+    gtheta[1] = c[2] * c[1] / (d * s2)
+    gtheta[2] = -d / s2
+
+
+@nb.njit(cache=True)
+def triplet_geometry_row(h, b, hv, b_threshold, g):
+    """Fill one geometry row g (length N_GEOMETRY_COLUMNS) for hits h (3×3, mm).
+
+    b: field (3,) [T] at the middle hit; hv: hit variances (3×3, [hit, x/y/z], mm²,
+    lab frame, uncorrelated). See `triplet_geometry` for the quantities.
+    """
+    g[:] = 0.0
+    status = 0
+    bmag = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    weak = bmag < b_threshold
+    rot = np.empty((3, 3))
+    if not _fit_frame(h, b, weak, rot):
+        g[G_STATUS] = STATUS_DEGENERATE
+        return
+    c01 = np.empty(3)
+    c12 = np.empty(3)
+    for k in range(3):
+        c01[k] = 0.0
+        c12[k] = 0.0
+        for m in range(3):
+            c01[k] += rot[k, m] * (h[1, m] - h[0, m])
+            c12[k] += rot[k, m] * (h[2, m] - h[1, m])
+    c02x = c01[0] + c12[0]
+    c02y = c01[1] + c12[1]
+    d01 = math.hypot(c01[0], c01[1])
+    d12 = math.hypot(c12[0], c12[1])
+    d02 = math.hypot(c02x, c02y)
+    z01 = c01[2]
+    z12 = c12[2]
+    if not (d01 > 0.0 and d12 > 0.0):
+        g[G_STATUS] = STATUS_DEGENERATE
+        return
+    cross = c01[0] * c12[1] - c01[1] * c12[0]  # > 0: counter-clockwise about B̂
+    turn = 1.0 if cross >= 0.0 else -1.0
+    acr = abs(cross)
+    # Bending angles Φ_1C, Φ_2C = twice the inscribed angle opposite each chord (exactly
+    # 2·asin(d_i/(2R_C)) of DESIGN §7.2 for Φ < π, and defined beyond a half turn).
+    phi1 = 2.0 * math.atan2(acr, c02x * c12[0] + c02y * c12[1])
+    phi2 = 2.0 * math.atan2(acr, c01[0] * c02x + c01[1] * c02y)
+    if phi1 + phi2 > math.pi:
+        status |= STATUS_LARGE_BENDING
+    # R_C = d01 d12 d02 / √(2d01²d12² + …) = d01 d12 d02 / (2|c01 × c12|)
+    r_c = d01 * d12 * d02 / (2.0 * acr) if acr > 0.0 else np.inf
+    # transverse arc lengths a_i = R_C Φ_iC, 3-D arc lengths s_i = Φ_iC·R3D_iC
+    a1 = d01 * _x_over_sin(0.5 * phi1)
+    a2 = d12 * _x_over_sin(0.5 * phi2)
+    s1 = math.hypot(a1, z01)
+    s2 = math.hypot(a2, z12)
+    theta1 = math.atan2(a1, z01)  # = acos(z_i/(Φ_iC R3D_iC))
+    theta2 = math.atan2(a2, z12)
+    if a1 < 1e-12 * s1 or a2 < 1e-12 * s2:
+        g[G_STATUS] = STATUS_DEGENERATE
+        return
+    cot1 = z01 / a1
+    cot2 = z12 / a2
+    # α_i = (R_C²Φ² + z²)/(½R_C²Φ³cot(Φ/2) + z²) = s²/(a²g + z²), g = (Φ/2)cot(Φ/2);
+    # 1 − α_i = a²(g − 1)/(a²g + z²) without cancellation.
+    gm1_1 = _xcotx_minus_one(0.5 * phi1)
+    gm1_2 = _xcotx_minus_one(0.5 * phi2)
+    den1 = a1 * a1 * (1.0 + gm1_1) + z01 * z01
+    den2 = a2 * a2 * (1.0 + gm1_2) + z12 * z12
+    oma1 = a1 * a1 * gm1_1 / den1
+    oma2 = a2 * a2 * gm1_2 / den2
+    alpha1 = 1.0 - oma1
+    alpha2 = 1.0 - oma2
+    # (1 − α_i)/Φ_iC, finite at Φ = 0
+    q1 = a1 * a1 * _xcotx_minus_one_over_2x(0.5 * phi1) / den1
+    q2 = a2 * a2 * _xcotx_minus_one_over_2x(0.5 * phi2) / den2
+    k1 = phi1 / s1  # 1/R3D_iC
+    k2 = phi2 / s2
+    # radius form (unsigned), DESIGN §7.2
+    phi_tilde = -0.5 * (phi1 * alpha1 + phi2 * alpha2)
+    eta = 0.5 * (phi1 * alpha1 * k1 + phi2 * alpha2 * k2)
+    theta_tilde = theta2 - theta1 - oma2 * cot2 + oma1 * cot1
+    beta = oma2 * k2 * cot2 - oma1 * k1 * cot1
+    vartheta = 0.5 * (theta1 + theta2)
+    # curvature form (κ signed like the charge): linearising Φ_i and θ_i in κ around
+    # the circle solution, dΦ_i/dκ = α_i·s_i and dθ_i/dκ = −(1 − α_i)·R3D_i/tan θ_i.
+    psi_phi = turn * 0.5 * (alpha1 * phi1 + alpha2 * phi2)
+    rho_phi = 0.5 * (alpha1 * s1 + alpha2 * s2)
+    psi_theta = theta2 - theta1 + oma2 * cot2 - oma1 * cot1
+    rho_theta = turn * (q2 * s2 * cot2 - q1 * s1 * cot1)
+    # hit errors → kink angles (App. A eq. 7, generalised: chord-angle Jacobian with the
+    # full 3-D hit covariance, which reproduces eq. 7 for a barrel layout)
+    gp01 = np.empty(3)
+    gt01 = np.empty(3)
+    gp12 = np.empty(3)
+    gt12 = np.empty(3)
+    _chord_gradients(c01, gp01, gt01)
+    _chord_gradients(c12, gp12, gt12)
+    vpp = 0.0
+    vpt = 0.0
+    vtt = 0.0
+    jp = np.empty(3)
+    jt = np.empty(3)
+    for k in range(3):
+        if hv[k, 0] == 0.0 and hv[k, 1] == 0.0 and hv[k, 2] == 0.0:
+            continue
+        for m in range(3):
+            if k == 0:
+                jp[m] = gp01[m]
+                jt[m] = gt01[m]
+            elif k == 1:
+                jp[m] = -(gp01[m] + gp12[m])
+                jt[m] = -(gt01[m] + gt12[m])
+            else:
+                jp[m] = gp12[m]
+                jt[m] = gt12[m]
+        # J_lab = J′·R; V += J_lab diag(hv_k) J_labᵀ
+        for m in range(3):
+            lp = jp[0] * rot[0, m] + jp[1] * rot[1, m] + jp[2] * rot[2, m]
+            lt = jt[0] * rot[0, m] + jt[1] * rot[1, m] + jt[2] * rot[2, m]
+            vpp += lp * lp * hv[k, m]
+            vpt += lp * lt * hv[k, m]
+            vtt += lt * lt * hv[k, m]
+    # circle-solution direction at the middle hit (lab slopes)
+    phi01 = math.atan2(c01[1], c01[0])
+    phi12 = math.atan2(c12[1], c12[0])
+    phim = phi01 + 0.5 * turn * phi1
+    st = math.sin(vartheta)
+    dpx = st * math.cos(phim)
+    dpy = st * math.sin(phim)
+    dpz = math.cos(vartheta)
+    dz = rot[0, 2] * dpx + rot[1, 2] * dpy + rot[2, 2] * dpz
+    if abs(dz) > 1e-12:
+        g[G_TXC] = (rot[0, 0] * dpx + rot[1, 0] * dpy + rot[2, 0] * dpz) / dz
+        g[G_TYC] = (rot[0, 1] * dpx + rot[1, 1] * dpy + rot[2, 1] * dpz) / dz
+    else:
+        status |= STATUS_BACKWARD
+    g[G_D01] = d01
+    g[G_D12] = d12
+    g[G_D02] = d02
+    g[G_Z01] = z01
+    g[G_Z12] = z12
+    g[G_RC] = r_c
+    g[G_TURN] = turn
+    g[G_PHI1] = phi1
+    g[G_PHI2] = phi2
+    g[G_R3D1] = s1 / phi1 if phi1 > 0.0 else np.inf
+    g[G_R3D2] = s2 / phi2 if phi2 > 0.0 else np.inf
+    g[G_THETA1] = theta1
+    g[G_THETA2] = theta2
+    g[G_ALPHA1] = alpha1
+    g[G_ALPHA2] = alpha2
+    g[G_PHI_TILDE] = phi_tilde
+    g[G_ETA] = eta
+    g[G_THETA_TILDE] = theta_tilde
+    g[G_BETA] = beta
+    g[G_VARTHETA] = vartheta
+    g[G_S1] = s1
+    g[G_S2] = s2
+    g[G_PSI_PHI] = psi_phi
+    g[G_RHO_PHI] = rho_phi
+    g[G_PSI_THETA] = psi_theta
+    g[G_RHO_THETA] = rho_theta
+    g[G_VPP] = vpp
+    g[G_VPT] = vpt
+    g[G_VTT] = vtt
+    g[G_BMAG] = bmag
+    g[G_PHI01] = phi01
+    g[G_PHI12] = phi12
+    for k in range(3):
+        for m in range(3):
+            g[G_ROT + 3 * k + m] = rot[k, m]
+    g[G_STATUS] = status
+
+
+@nb.njit(cache=True)
+def _geometry_kernel(hits, bfield, hit_var, b_threshold):
+    n = hits.shape[0]
+    out = np.empty((n, N_GEOMETRY_COLUMNS))
+    for i in range(n):
+        triplet_geometry_row(hits[i], bfield[i], hit_var[i], b_threshold, out[i])
+    return out
+
+
+# ------------------------------------------------------------------------------------
+# Fits on one geometry row
+# ------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _path_x0(g, x_over_x0):
+    """Path length [X0] through the middle plane (normal z) along the circle direction."""
+    tx = g[G_TXC]
+    ty = g[G_TYC]
+    return x_over_x0 * math.sqrt(1.0 + tx * tx + ty * ty)
+
+
+@nb.njit(cache=True)
+def _weighted_2x2(cpp, cpt, ctt, rp, rt, pp, pt):
+    """For C = [[cpp, cpt], [cpt, ctt]] and K = C⁻¹: (ρᵀKρ, ρᵀKψ, ψᵀKψ), ρ = (rp, rt),
+    ψ = (pp, pt). Returns zeros if C is singular."""
+    det = cpp * ctt - cpt * cpt
+    if not det > 0.0:
+        return 0.0, 0.0, 0.0
+    kpp = ctt / det
+    kpt = -cpt / det
+    ktt = cpp / det
+    rkr = rp * (kpp * rp + kpt * rt) + rt * (kpt * rp + ktt * rt)
+    rkp = rp * (kpp * pp + kpt * pt) + rt * (kpt * pp + ktt * pt)
+    pkp = pp * (kpp * pp + kpt * pt) + pt * (kpt * pp + ktt * pt)
+    return rkr, rkp, pkp
+
+
+@nb.njit(cache=True)
+def _ms_only_radius(g):
+    """Paper eq. 1: R3D = −(ηΦ̃ sin²ϑ + βΘ̃)/(η² sin²ϑ + β²) and its geometric weight."""
+    s2 = math.sin(g[G_VARTHETA]) ** 2
+    eta = g[G_ETA]
+    beta = g[G_BETA]
+    w = eta * eta * s2 + beta * beta
+    if not w > 0.0:
+        return 0.0, 0.0
+    return -(eta * g[G_PHI_TILDE] * s2 + beta * g[G_THETA_TILDE]) / w, w
+
+
+@nb.njit(cache=True)
+def fit_ms_row(g, x_over_x0, mass, bias_correction):
+    """MS-only radius fit (paper eq. 1) on one geometry row.
+
+    Returns (R3D [mm], σ(R3D) [mm], χ²_min, σ_MS [rad], ok) with
+    σ(R3D)² = σ_MS²/(η² sin²ϑ + β²), χ²_min = (βΦ̃ − ηΘ̃)²/(σ_MS²(η² + β²/sin²ϑ)) and
+    σ_MS from Highland at p = κ_c·|B|·R3D (R3D does not depend on σ_MS).
+    bias_correction: multiply R3D by ¾ + ¼√(1 − 8δ² sin²ϑ),
+    δ = (βΦ̃ − ηΘ̃)/(ηΦ̃ sin²ϑ + βΘ̃) (Belle II, DESIGN §15).
+    """
+    if int(g[G_STATUS]) & STATUS_DEGENERATE:
+        return 0.0, 0.0, np.inf, 0.0, False
+    r3d, w = _ms_only_radius(g)
+    if not (r3d > 0.0 and math.isfinite(r3d)):
+        return 0.0, 0.0, np.inf, 0.0, False
+    s2 = math.sin(g[G_VARTHETA]) ** 2
+    eta = g[G_ETA]
+    beta = g[G_BETA]
+    phit = g[G_PHI_TILDE]
+    thet = g[G_THETA_TILDE]
+    if bias_correction:
+        den = eta * phit * s2 + beta * thet
+        if den != 0.0:
+            delta = (beta * phit - eta * thet) / den
+            arg = 1.0 - 8.0 * delta * delta * s2
+            r3d *= 0.75 + 0.25 * math.sqrt(max(arg, 0.0))
+    p = C_LIGHT * g[G_BMAG] * r3d
+    sms = highland_sigma(p, mass, _path_x0(g, x_over_x0))
+    if not sms > 0.0:
+        return r3d, 0.0, np.inf, 0.0, False
+    sig_r = sms / math.sqrt(w)
+    num = beta * phit - eta * thet
+    chi2 = num * num / (sms * sms * (eta * eta + beta * beta / s2))
+    return r3d, sig_r, chi2, sms, True
+
+
+@nb.njit(cache=True)
+def _radius_cubic_coefficients(eta, beta, phit, thet, s2, vpp, vpt, vtt, b):
+    """App. C cubic a3 R³ + a2 R² + a1 R + a0 = 0 for σ_MS = b/R3D.
+
+    It is the stationarity condition ∂χ²/∂R = 0 of
+    χ² = (Φ̃ + ηR, Θ̃ + βR)·C⁻¹·(…)ᵀ, C = [[b²/(R² sin²ϑ) + V_ΦΦ, V_ΦΘ], [V_ΦΘ, b²/R² + V_ΘΘ]]
+    with C held at the solution (σ_MS is not differentiated), multiplied by R²·det C.
+    With V_ΦΘ = 0 these are the paper's coefficients:
+    a3 = η²σ²_θhit + β²σ²_φhit, a2 = ηΦ̃σ²_θhit + βΘ̃σ²_φhit, a1 = b²(η² + β²/sin²ϑ),
+    a0 = b²(ηΦ̃ + βΘ̃/sin²ϑ).
+    """
+    a3 = eta * eta * vtt - 2.0 * vpt * eta * beta + beta * beta * vpp
+    a2 = eta * phit * vtt - vpt * (eta * thet + beta * phit) + beta * thet * vpp
+    a1 = b * b * (eta * eta + beta * beta / s2)
+    a0 = b * b * (eta * phit + beta * thet / s2)
+    return a3, a2, a1, a0
+
+
+@nb.njit(cache=True)
+def _pick_root(n, r0, r1, r2, ref, positive):
+    """The real root nearest to ref (optionally only positive ones); ok flag."""
+    best = 0.0
+    bestd = np.inf
+    for k in range(n):
+        r = r0 if k == 0 else (r1 if k == 1 else r2)
+        if positive and not r > 0.0:
+            continue
+        dd = abs(r - ref)
+        if dd < bestd:
+            bestd = dd
+            best = r
+    return best, bestd < np.inf
+
+
+@nb.njit(cache=True)
+def fit_hit_errors_row(g, x_over_x0, mass):
+    """Radius fit with hit uncertainties (paper §2.1.2, App. A, App. C) on one row.
+
+    Effective kink variances σ²_φ,eff = σ_MS²/sin²ϑ + σ²_φhit, σ²_θ,eff = σ_MS² + σ²_θhit
+    (+ the Φ–Θ hit covariance, zero in the paper's eq. 7), σ_MS = b/R3D with
+    b = θ0(p)·R3D from Highland at p = κ_c|B|R3D.
+
+    Root choice: all fixed points R = −(ρᵀKψ)/(ρᵀKρ) (K at R) lie between the
+    single-kink solutions −Φ̃/η and −Θ̃/β; the physical root is the one continuously
+    connected to eq. 1 as the hit errors vanish. We start from eq. 1, do three
+    fixed-point iterations with K frozen, take the positive real Cardano root nearest to
+    that iterate, then recompute b at the new momentum (β and the logarithm of
+    Highland) and solve the cubic once more.
+
+    Returns (R3D, σ(R3D), χ², b [rad·mm], σ_MS, status) with
+    σ(R3D)² = 1/(ρᵀKρ), χ² = rᵀKr at the root, r = (Φ̃ + ηR, Θ̃ + βR).
+    """
+    status = int(g[G_STATUS])
+    if status & STATUS_DEGENERATE:
+        return 0.0, 0.0, np.inf, 0.0, 0.0, status
+    s2 = math.sin(g[G_VARTHETA]) ** 2
+    eta = g[G_ETA]
+    beta = g[G_BETA]
+    phit = g[G_PHI_TILDE]
+    thet = g[G_THETA_TILDE]
+    vpp = g[G_VPP]
+    vpt = g[G_VPT]
+    vtt = g[G_VTT]
+    r, w = _ms_only_radius(g)
+    if not (r > 0.0 and math.isfinite(r)):
+        return 0.0, 0.0, np.inf, 0.0, 0.0, status | STATUS_CURVATURE_FALLBACK
+    t = _path_x0(g, x_over_x0)
+    bmag = g[G_BMAG]
+    b = highland_sigma(C_LIGHT * bmag * r, mass, t) * r
+    for _ in range(2):
+        # fixed-point iterations with the weights frozen
+        for _ in range(3):
+            cpp = b * b / (r * r * s2) + vpp
+            ctt = b * b / (r * r) + vtt
+            rkr, rkp, _pkp = _weighted_2x2(cpp, vpt, ctt, eta, beta, phit, thet)
+            if not rkr > 0.0:
+                break
+            rn = -rkp / rkr
+            if rn > 0.0:
+                r = rn
+        a3, a2, a1, a0 = _radius_cubic_coefficients(eta, beta, phit, thet, s2,
+                                                    vpp, vpt, vtt, b)
+        n, x0, x1, x2 = solve_cubic(a3, a2, a1, a0, r)
+        root, ok = _pick_root(n, x0, x1, x2, r, True)
+        if ok:
+            r = root
+        else:
+            status |= STATUS_ROOT_FALLBACK
+        b = highland_sigma(C_LIGHT * bmag * r, mass, t) * r
+    sms = b / r
+    cpp = sms * sms / s2 + vpp
+    ctt = sms * sms + vtt
+    rp = phit + eta * r
+    rt = thet + beta * r
+    rkr, rkp, pkp = _weighted_2x2(cpp, vpt, ctt, eta, beta, rp, rt)
+    if not rkr > 0.0:
+        return r, 0.0, np.inf, b, sms, status | STATUS_NO_VARIANCE
+    return r, 1.0 / math.sqrt(rkr), pkp, b, sms, status
+
+
+@nb.njit(cache=True)
+def _curvature_cubic_coefficients(rp, rt, pp, pt, s2, vpp, vpt, vtt, b):
+    """Curvature-form analogue of App. C: σ_MS = b·|κ|, frozen-weight stationarity
+    κ·ρᵀadj(C)ρ + ρᵀadj(C)ψ = 0 with C = [[b²κ²/sin²ϑ + V_ΦΦ, V_ΦΘ], [V_ΦΘ, b²κ² + V_ΘΘ]]."""
+    a3 = b * b * (rp * rp + rt * rt / s2)
+    a2 = b * b * (rp * pp + rt * pt / s2)
+    a1 = rp * rp * vtt - 2.0 * vpt * rp * rt + rt * rt * vpp
+    a0 = rp * pp * vtt - vpt * (rp * pt + rt * pp) + rt * pt * vpp
+    return a3, a2, a1, a0
+
+
+@nb.njit(cache=True)
+def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
+    """Curvature-form fit (DESIGN §7.2 last item, §15 traccc) on one geometry row.
+
+    Kinks linear in the signed curvature κ: r(κ) = ψ + ρκ (columns psi_*/rho_*),
+    C = diag(σ_MS²/sin²ϑ, σ_MS²) + V_hit, K = C⁻¹:
+    κ̂ = −ρᵀKψ/ρᵀKρ, var κ̂ = 1/ρᵀKρ, χ² = ψᵀKψ − (ρᵀKψ)²/ρᵀKρ.
+    Below `b_threshold` σ_MS is Highland at p_min (C fixed: one linear solve); with
+    `straight` κ is fixed to 0 there (χ² = ψᵀKψ, ndf 2). Above it σ_MS = b|κ| with b
+    from Highland at p = κ_c|B|/|κ|, solved like App. C (cubic in κ, root nearest to
+    the fixed-point iterate started from the MS-only solution, b updated once).
+
+    Returns (κ [1/mm], var κ [1/mm²], χ², σ_MS [rad], ndf, status).
+    """
+    status = int(g[G_STATUS])
+    if status & STATUS_DEGENERATE:
+        return 0.0, np.inf, np.inf, 0.0, 1, status
+    s2 = math.sin(g[G_VARTHETA]) ** 2
+    rp = g[G_RHO_PHI]
+    rt = g[G_RHO_THETA]
+    pp = g[G_PSI_PHI]
+    pt = g[G_PSI_THETA]
+    vpp = g[G_VPP]
+    vpt = g[G_VPT]
+    vtt = g[G_VTT]
+    t = _path_x0(g, x_over_x0)
+    bmag = g[G_BMAG]
+    if bmag < b_threshold:
+        status |= STATUS_WEAK_FIELD
+        sms = highland_sigma(p_min, mass, t)
+        cpp = sms * sms / s2 + vpp
+        ctt = sms * sms + vtt
+        rkr, rkp, pkp = _weighted_2x2(cpp, vpt, ctt, rp, rt, pp, pt)
+        if not rkr > 0.0:
+            return 0.0, np.inf, np.inf, sms, 1, status | STATUS_NO_VARIANCE
+        if straight:
+            return 0.0, 1.0 / rkr, pkp, sms, 2, status
+        return -rkp / rkr, 1.0 / rkr, max(pkp - rkp * rkp / rkr, 0.0), sms, 1, status
+    # MS-only solution (σ_MS common factor): weights diag(sin²ϑ, 1)
+    w = rp * rp * s2 + rt * rt
+    kap = -(rp * pp * s2 + rt * pt) / w
+    kc = C_LIGHT * bmag
+    hit_errors = vpp > 0.0 or vtt > 0.0
+    b = highland_sigma(kc / max(abs(kap), kc / P_MAX), mass, t) / max(abs(kap), kc / P_MAX)
+    if hit_errors:
+        for _ in range(2):
+            for _ in range(3):
+                sm = b * max(abs(kap), kc / P_MAX)
+                rkr, rkp, _pkp = _weighted_2x2(sm * sm / s2 + vpp, vpt, sm * sm + vtt,
+                                               rp, rt, pp, pt)
+                if not rkr > 0.0:
+                    break
+                kap = -rkp / rkr
+            a3, a2, a1, a0 = _curvature_cubic_coefficients(rp, rt, pp, pt, s2,
+                                                           vpp, vpt, vtt, b)
+            scale = max(abs(kap), kc / P_MAX)
+            n, x0, x1, x2 = solve_cubic(a3, a2, a1, a0, scale)
+            root, ok = _pick_root(n, x0, x1, x2, kap, False)
+            if ok:
+                kap = root
+            else:
+                status |= STATUS_ROOT_FALLBACK
+            ak = max(abs(kap), kc / P_MAX)
+            b = highland_sigma(kc / ak, mass, t) / ak
+    sms = b * max(abs(kap), kc / P_MAX)
+    cpp = sms * sms / s2 + vpp
+    ctt = sms * sms + vtt
+    rkr, rkp, pkp = _weighted_2x2(cpp, vpt, ctt, rp, rt, pp + rp * kap, pt + rt * kap)
+    if not rkr > 0.0:
+        return kap, np.inf, np.inf, sms, 1, status | STATUS_NO_VARIANCE
+    return kap, 1.0 / rkr, pkp, sms, 1, status
+
+
+@nb.njit(cache=True)
+def _fitted_thetas(g, kap):
+    """Polar angles θ_1(κ), θ_2(κ) of the two segments, linearised around the circle."""
+    th = np.empty(2)
+    turn = g[G_TURN]
+    for i in range(2):
+        if i == 0:
+            phi, s, a, z, theta = g[G_PHI1], g[G_S1], 0.0, g[G_Z01], g[G_THETA1]
+        else:
+            phi, s, a, z, theta = g[G_PHI2], g[G_S2], 0.0, g[G_Z12], g[G_THETA2]
+        a = s * math.sin(theta)
+        if a <= 0.0:
+            th[i] = theta
+            continue
+        x = 0.5 * phi
+        gm1 = _xcotx_minus_one(x)
+        den = a * a * (1.0 + gm1) + z * z
+        oma = a * a * gm1 / den
+        q = a * a * _xcotx_minus_one_over_2x(x) / den
+        cot = z / a
+        th[i] = theta + oma * cot + kap * turn * q * s * cot
+    return th[0], th[1]
+
+
+@nb.njit(cache=True)
+def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out):
+    """Full fit of one triplet from its geometry row; writes `out` (N_FIT_COLUMNS).
+
+    form = FORM_RADIUS: App. C (or eq. 1 without hit errors) where |B| ≥ b_threshold,
+    the curvature form below it (and as a fallback where R3D is not defined, e.g.
+    collinear hits in a field); FORM_CURVATURE: the curvature form everywhere.
+    out = (κ, var κ, q/p, var q/p, χ², ndf, Φ_MS, Θ_MS, var Φ_MS, var Θ_MS, tx, ty,
+    σ_MS, status); see `TripletFit`.
+    """
+    status = int(g[G_STATUS])
+    ndf = 1
+    kap = 0.0
+    var_k = np.inf
+    chi2 = np.inf
+    sms = 0.0
+    bmag = g[G_BMAG]
+    turn = g[G_TURN]
+    done = False
+    if not (status & STATUS_DEGENERATE):
+        hit_errors = g[G_VPP] > 0.0 or g[G_VTT] > 0.0
+        if form == FORM_RADIUS and bmag >= b_threshold:
+            if hit_errors:
+                r, sr, c2, _b, sm, st = fit_hit_errors_row(g, x_over_x0, mass)
+                ok = not (st & (STATUS_CURVATURE_FALLBACK | STATUS_NO_VARIANCE))
+            else:
+                r, sr, c2, sm, ok = fit_ms_row(g, x_over_x0, mass, False)
+                st = status
+            if ok and r > 0.0:
+                kap = -turn / r
+                var_k = (sr / (r * r)) ** 2
+                chi2 = c2
+                sms = sm
+                status = st
+                done = True
+            else:
+                status |= STATUS_CURVATURE_FALLBACK
+        if not done:
+            kap, var_k, chi2, sms, ndf, st = fit_curvature_row(
+                g, x_over_x0, mass, b_threshold, p_min, straight)
+            status |= st
+            if straight and (st & STATUS_WEAK_FIELD):
+                kap = 0.0
+    out[:] = 0.0
+    out[F_KAPPA] = kap
+    out[F_VAR_KAPPA] = var_k
+    out[F_CHI2] = chi2
+    out[F_NDF] = ndf
+    out[F_SIGMA_MS] = sms
+    if status & STATUS_DEGENERATE:
+        out[F_VAR_QOP] = np.inf
+        out[F_STATUS] = status
+        return
+    if bmag >= b_threshold:
+        kc = C_LIGHT * bmag
+        out[F_QOP] = kap / kc
+        out[F_VAR_QOP] = var_k / (kc * kc)
+    else:
+        out[F_QOP] = 0.0
+        out[F_VAR_QOP] = 1.0 / (p_min * p_min)
+    # kinks at the fitted curvature and their effective variances
+    s2 = math.sin(g[G_VARTHETA]) ** 2
+    out[F_KINK_PHI] = g[G_PSI_PHI] + g[G_RHO_PHI] * kap
+    out[F_KINK_THETA] = g[G_PSI_THETA] + g[G_RHO_THETA] * kap
+    out[F_VAR_KINK_PHI] = sms * sms / s2 + g[G_VPP]
+    out[F_VAR_KINK_THETA] = sms * sms + g[G_VTT]
+    # direction at the middle hit: mean of the fitted in/out tangents. Transverse turning
+    # of segment i at κ (counter-clockwise): turn·Φ_iC + α_i s_i (−κ − turn·Φ_iC/s_i).
+    phi1 = g[G_PHI1]
+    phi2 = g[G_PHI2]
+    kccw = -kap
+    turn1 = turn * phi1 + g[G_ALPHA1] * (g[G_S1] * kccw - turn * phi1)
+    turn2 = turn * phi2 + g[G_ALPHA2] * (g[G_S2] * kccw - turn * phi2)
+    phi_in = g[G_PHI01] + 0.5 * turn1
+    phi_out = g[G_PHI12] - 0.5 * turn2
+    phim = phi_in + 0.5 * _wrap(phi_out - phi_in)
+    th1, th2 = _fitted_thetas(g, kap)
+    thm = 0.5 * (th1 + th2)
+    st = math.sin(thm)
+    dpx = st * math.cos(phim)
+    dpy = st * math.sin(phim)
+    dpz = math.cos(thm)
+    r = g[G_ROT:G_ROT + 9]
+    dx = r[0] * dpx + r[3] * dpy + r[6] * dpz
+    dy = r[1] * dpx + r[4] * dpy + r[7] * dpz
+    dz = r[2] * dpx + r[5] * dpy + r[8] * dpz
+    if abs(dz) > 1e-12:
+        out[F_TX] = dx / dz
+        out[F_TY] = dy / dz
+    else:
+        status |= STATUS_BACKWARD
+    out[F_STATUS] = status

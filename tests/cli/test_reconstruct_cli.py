@@ -1,0 +1,84 @@
+"""`pkf reconstruct --pattern truth` end to end: the run tables of DESIGN §6."""
+
+import json
+import shutil
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pkf.cli import main
+from pkf.io.reader import read_table
+from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("data") / "gun"
+    assert main(["simulate", "--out", str(out), "--generator", "gun", "--events", "20", "--seed", "2"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def run(dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "run"
+    assert main(["reconstruct", str(dataset), "--out", str(out), "--fitter", "reference", "--pattern", "truth"]) == 0
+    return out
+
+
+def test_run_tables(run):
+    chi2 = read_table(run, CHI2, name="chi2").to_pydict()
+    states = read_table(run, STATES, name="states").to_pydict()
+    pulls = read_table(run, PULLS, name="pulls").to_pydict()
+    candidates = read_table(run, CANDIDATES, name="candidates").to_pydict()
+    n_tracks = len(chi2["track_id"])
+    assert n_tracks > 150
+    assert set(chi2["fitter"]) == {"reference"}
+    assert len(set(zip(candidates["event_id"], candidates["track_id"]))) == n_tracks
+    ok = np.array(chi2["status"]) == "ok"
+    assert ok.mean() > 0.95
+    assert len(states["track_id"]) == 3 * ok.sum()
+    assert set(states["location"]) == {"first_hit", "last_hit", "beamline"}
+    assert np.all(np.array(chi2["mc_particle_id"])[ok] > 0)
+    assert not np.any(np.array(chi2["is_ghost"]))
+    pull_x = np.array(pulls["pull_x"])
+    assert np.all(np.isfinite(pull_x)) and 0.7 < np.std(pull_x) < 1.3
+    # the beamline is near the luminous region (σ_z = 45 mm)
+    beam_z = np.array(states["z"])[np.array(states["location"]) == "beamline"]
+    assert np.median(np.abs(beam_z)) < 100
+
+
+def test_run_json(run):
+    info = json.loads((run / "run.json").read_text())
+    assert info["config"]["pattern"] == "truth" and info["config"]["fitters"] == ["reference"]
+    timing = info["timing"]["fit"]["reference"]
+    assert timing["tracks"] > 0 and timing["tracks_per_s"] > 0 and timing["ns_per_node"] > 0
+    assert info["pattern"]["efficiency"] > 0.95
+    assert info["input"]["geometry"] == "lhcb-like"
+
+
+def test_reconstruct_bad_input(dataset, tmp_path, capsys):
+    code = main(["reconstruct", str(tmp_path / "missing"), "--out", str(tmp_path / "r"), "--fitter",
+                 "reference", "--pattern", "truth"])
+    assert code == 2
+    capsys.readouterr()
+    no_mc = tmp_path / "no_mc"
+    shutil.copytree(dataset, no_mc)
+    (no_mc / "mc_hits.parquet").unlink()
+    code = main(["reconstruct", str(no_mc), "--out", str(tmp_path / "r"), "--fitter", "reference",
+                 "--pattern", "truth"])
+    err = capsys.readouterr().err
+    assert code == 2 and "mc_hits" in err and err.count("\n") == 1
+    broken = tmp_path / "broken"
+    shutil.copytree(dataset, broken)
+    (broken / "hits.parquet").write_bytes((dataset / "hits.parquet").read_bytes()[:1000])
+    code = main(["reconstruct", str(broken), "--out", str(tmp_path / "r"), "--fitter", "reference",
+                 "--pattern", "truth"])
+    assert code == 2
+    assert not (tmp_path / "r").exists()
+
+
+def test_not_built_fitters_say_so(dataset, tmp_path, capsys):
+    code = main(["reconstruct", str(dataset), "--out", str(tmp_path / "r"), "--pattern", "truth"])
+    assert code == 1 and "not built yet" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
