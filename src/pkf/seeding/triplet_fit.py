@@ -817,9 +817,9 @@ def _fitted_thetas(g, kap):
     turn = g[G_TURN]
     for i in range(2):
         if i == 0:
-            phi, s, a, z, theta = g[G_PHI1], g[G_S1], 0.0, g[G_Z01], g[G_THETA1]
+            phi, s, z, theta = g[G_PHI1], g[G_S1], g[G_Z01], g[G_THETA1]
         else:
-            phi, s, a, z, theta = g[G_PHI2], g[G_S2], 0.0, g[G_Z12], g[G_THETA2]
+            phi, s, z, theta = g[G_PHI2], g[G_S2], g[G_Z12], g[G_THETA2]
         a = s * math.sin(theta)
         if a <= 0.0:
             th[i] = theta
@@ -853,6 +853,8 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
     bmag = g[G_BMAG]
     turn = g[G_TURN]
     done = False
+    kphi = 0.0
+    ktheta = 0.0
     if not (status & STATUS_DEGENERATE):
         hit_errors = g[G_VPP] > 0.0 or g[G_VTT] > 0.0
         if form == FORM_RADIUS and bmag >= b_threshold:
@@ -869,6 +871,8 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
                 sms = sm
                 status = st
                 done = True
+                kphi = turn * (g[G_PHI_TILDE] + g[G_ETA] * r)
+                ktheta = g[G_THETA_TILDE] + g[G_BETA] * r
             else:
                 status |= STATUS_CURVATURE_FALLBACK
         if not done:
@@ -877,6 +881,8 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
             status |= st
             if straight and (st & STATUS_WEAK_FIELD):
                 kap = 0.0
+            kphi = g[G_PSI_PHI] + g[G_RHO_PHI] * kap
+            ktheta = g[G_PSI_THETA] + g[G_RHO_THETA] * kap
     out[:] = 0.0
     out[F_KAPPA] = kap
     out[F_VAR_KAPPA] = var_k
@@ -896,8 +902,8 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
         out[F_VAR_QOP] = 1.0 / (p_min * p_min)
     # kinks at the fitted curvature and their effective variances
     s2 = math.sin(g[G_VARTHETA]) ** 2
-    out[F_KINK_PHI] = g[G_PSI_PHI] + g[G_RHO_PHI] * kap
-    out[F_KINK_THETA] = g[G_PSI_THETA] + g[G_RHO_THETA] * kap
+    out[F_KINK_PHI] = kphi
+    out[F_KINK_THETA] = ktheta
     out[F_VAR_KINK_PHI] = sms * sms / s2 + g[G_VPP]
     out[F_VAR_KINK_THETA] = sms * sms + g[G_VTT]
     # direction at the middle hit: mean of the fitted in/out tangents. Transverse turning
@@ -926,3 +932,392 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
     else:
         status |= STATUS_BACKWARD
     out[F_STATUS] = status
+
+
+@nb.njit(cache=True)
+def fit_triplets_kernel(hits, bfield, x_over_x0, hit_var, mass, b_threshold, p_min,
+                        form, straight):
+    """Compiled batch fit: hits (n, 3, 3) [mm], bfield (n, 3) [T] at the middle hit,
+    x_over_x0 (n,), hit_var (n, 3, 3) [mm²]. Returns (geometry (n, N_GEOMETRY_COLUMNS),
+    fit (n, N_FIT_COLUMNS)); columns GEOMETRY_COLUMNS and FIT_COLUMNS."""
+    n = hits.shape[0]
+    geo = np.empty((n, N_GEOMETRY_COLUMNS))
+    fit = np.empty((n, N_FIT_COLUMNS))
+    for i in range(n):
+        triplet_geometry_row(hits[i], bfield[i], hit_var[i], b_threshold, geo[i])
+        fit_triplet_row(geo[i], x_over_x0[i], mass, b_threshold, p_min, form, straight,
+                        fit[i])
+    return geo, fit
+
+
+@nb.njit(cache=True)
+def _ms_kernel(geo, x_over_x0, mass, bias_correction):
+    n = geo.shape[0]
+    out = np.empty((n, 4))
+    ok = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        r, sr, c2, sms, good = fit_ms_row(geo[i], x_over_x0[i], mass, bias_correction)
+        out[i, 0] = r
+        out[i, 1] = sr
+        out[i, 2] = c2
+        out[i, 3] = sms
+        ok[i] = good
+    return out, ok
+
+
+@nb.njit(cache=True)
+def _hit_errors_kernel(geo, x_over_x0, mass):
+    n = geo.shape[0]
+    out = np.empty((n, 5))
+    status = np.empty(n, dtype=np.int32)
+    for i in range(n):
+        r, sr, c2, b, sms, st = fit_hit_errors_row(geo[i], x_over_x0[i], mass)
+        out[i, 0] = r
+        out[i, 1] = sr
+        out[i, 2] = c2
+        out[i, 3] = b
+        out[i, 4] = sms
+        status[i] = st
+    return out, status
+
+
+@nb.njit(cache=True)
+def _curvature_kernel(geo, x_over_x0, mass, b_threshold, p_min, straight):
+    n = geo.shape[0]
+    out = np.empty((n, 4))
+    ndf = np.empty(n, dtype=np.int32)
+    status = np.empty(n, dtype=np.int32)
+    for i in range(n):
+        k, vk, c2, sms, nd, st = fit_curvature_row(geo[i], x_over_x0[i], mass,
+                                                   b_threshold, p_min, straight)
+        out[i, 0] = k
+        out[i, 1] = vk
+        out[i, 2] = c2
+        out[i, 3] = sms
+        ndf[i] = nd
+        status[i] = st
+    return out, ndf, status
+
+
+# ------------------------------------------------------------------------------------
+# Combination of conjoined triplets (paper §3, eqs. 3–6)
+# ------------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _combine_chain(offsets, kappa, var_kappa, chi2, ndf, mode):
+    """Combined κ, var κ, χ², ndf and status of each chain offsets[j]:offsets[j+1]."""
+    m = offsets.shape[0] - 1
+    k_out = np.zeros(m)
+    v_out = np.full(m, np.inf)
+    c_out = np.full(m, np.inf)
+    n_out = np.zeros(m, dtype=np.int32)
+    s_out = np.zeros(m, dtype=np.int32)
+    for j in range(m):
+        lo = offsets[j]
+        hi = offsets[j + 1]
+        nt = hi - lo
+        if nt <= 0:
+            s_out[j] = STATUS_DEGENERATE
+            continue
+        csum = 0.0
+        nsum = 0
+        bad = False
+        for i in range(lo, hi):
+            csum += chi2[i]
+            nsum += ndf[i]
+            if not (var_kappa[i] > 0.0 and math.isfinite(var_kappa[i])
+                    and math.isfinite(chi2[i])):
+                bad = True
+        n_out[j] = nsum + nt - 1
+        if bad:
+            s_out[j] = STATUS_INVALID
+            continue
+        if mode == COMBINE_RADIUS:
+            # eqs. 3–4 with σ_i(R̄) = ε_i·R̄, ε_i = σ(R_i)/|R_i| = σ(κ_i)/|κ_i| (MS-dominated
+            # triplets have a constant relative error): R̄ = ΣR_i²/ε_i² / ΣR_i/ε_i²
+            # minimises Σ(R_i − R̄)²/(ε_i R̄)².
+            num = 0.0
+            den = 0.0
+            for i in range(lo, hi):
+                if kappa[i] == 0.0:
+                    bad = True
+                    break
+                r = 1.0 / kappa[i]
+                e2 = var_kappa[i] / (kappa[i] * kappa[i])
+                num += r * r / e2
+                den += r / e2
+            if bad or den == 0.0:
+                s_out[j] = STATUS_INVALID
+                continue
+            rbar = num / den
+            extra = 0.0
+            winv = 0.0
+            for i in range(lo, hi):
+                r = 1.0 / kappa[i]
+                e2 = var_kappa[i] / (kappa[i] * kappa[i])
+                sig2 = e2 * rbar * rbar
+                extra += (r - rbar) ** 2 / sig2
+                winv += 1.0 / sig2
+            k_out[j] = 1.0 / rbar
+            v_out[j] = (1.0 / winv) / (rbar ** 4)
+            c_out[j] = csum + extra
+        else:
+            # eqs. 5–6: h̄ = Σ h_i/σ(h_i)² / Σ 1/σ(h_i)², χ² += Σ (h_i − h̄)²/σ(h_i)²
+            num = 0.0
+            den = 0.0
+            for i in range(lo, hi):
+                num += kappa[i] / var_kappa[i]
+                den += 1.0 / var_kappa[i]
+            hbar = num / den
+            extra = 0.0
+            for i in range(lo, hi):
+                extra += (kappa[i] - hbar) ** 2 / var_kappa[i]
+            k_out[j] = hbar
+            v_out[j] = 1.0 / den
+            c_out[j] = csum + extra
+    return k_out, v_out, c_out, n_out, s_out
+
+
+# ------------------------------------------------------------------------------------
+# Python interface (argument checking and broadcasting; the work is in the kernels)
+# ------------------------------------------------------------------------------------
+
+
+class TripletFit(NamedTuple):
+    """Per-triplet result of `fit_triplets` (arrays of length n).
+
+    kappa        signed 3-D curvature κ = ±1/R3D [1/mm], sign of the charge (fit frame
+                 z′ = B̂); below the field threshold the sign is with respect to the
+                 chosen axis and κ is not a momentum measurement
+    var_kappa    variance of κ [1/mm²]
+    qop          q/p = κ/(κ_c|B|) [1/MeV]; 0 below the field threshold
+    var_qop      its variance [1/MeV²]; 1/p_min² below the field threshold
+    chi2, ndf    χ² of the kink fit and its degrees of freedom (1; 2 for straight lines
+                 with `straight_below_threshold`)
+    kink_phi     transverse kink Φ_MS at the fit [rad] (counter-clockwise about B̂)
+    kink_theta   longitudinal kink Θ_MS = θ_out − θ_in at the fit [rad]
+    var_kink_phi, var_kink_theta   their effective variances σ²_φ,eff, σ²_θ,eff [rad²]
+                 (App. A: MS plus propagated hit errors)
+    phi_tilde, theta_tilde         the paper's Φ̃ and Θ̃ [rad] (geometry, radius form)
+    tx, ty       slopes at the middle hit (lab frame)
+    sigma_ms     σ_MS used [rad]
+    status       bit flags (STATUS_*); `valid` is status & STATUS_INVALID == 0
+    geometry     the geometry table (n, N_GEOMETRY_COLUMNS), columns GEOMETRY_COLUMNS
+    """
+
+    kappa: np.ndarray
+    var_kappa: np.ndarray
+    qop: np.ndarray
+    var_qop: np.ndarray
+    chi2: np.ndarray
+    ndf: np.ndarray
+    kink_phi: np.ndarray
+    kink_theta: np.ndarray
+    var_kink_phi: np.ndarray
+    var_kink_theta: np.ndarray
+    phi_tilde: np.ndarray
+    theta_tilde: np.ndarray
+    tx: np.ndarray
+    ty: np.ndarray
+    sigma_ms: np.ndarray
+    status: np.ndarray
+    geometry: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        """True where the fit is usable (no STATUS_INVALID bit)."""
+        return (self.status & STATUS_INVALID) == 0
+
+    @property
+    def r3d(self) -> np.ndarray:
+        """|1/κ| [mm] (inf where κ = 0)."""
+        with np.errstate(divide="ignore"):
+            return 1.0 / np.abs(self.kappa)
+
+
+def _as_hits(hits) -> np.ndarray:
+    h = np.ascontiguousarray(hits, dtype=np.float64)
+    if h.ndim != 3 or h.shape[1:] != (3, 3):
+        raise ValueError(f"hits must have shape (n, 3, 3) [triplet, hit, xyz], got {h.shape}")
+    return h
+
+
+def _per_triplet(value, n: int, shape: tuple, name: str) -> np.ndarray:
+    a = np.asarray(value, dtype=np.float64)
+    try:
+        return np.ascontiguousarray(np.broadcast_to(a, (n,) + shape))
+    except ValueError:
+        raise ValueError(f"{name} must broadcast to {(n,) + shape}, got {a.shape}") from None
+
+
+def triplet_geometry(hits, bfield, hit_var=None,
+                     b_threshold: float = DEFAULT_B_THRESHOLD) -> np.ndarray:
+    """Triplet geometry in the frame with z′ along the field at the middle hit (§7.2).
+
+    hits: (n, 3, 3) positions [mm] (triplet, hit 0/1/2 along the motion, x/y/z);
+    bfield: (3,) or (n, 3) field [T] at the middle hit; hit_var: None or broadcastable
+    to (n, 3, 3) per-hit variances of x, y, z [mm²] (lab frame, uncorrelated).
+    Below b_threshold [T] the z′ axis is made orthogonal to the chord (module docstring).
+
+    Returns an (n, N_GEOMETRY_COLUMNS) array, columns GEOMETRY_COLUMNS:
+    d01, d12, d02 transverse distances; z01, z12 along B̂; R_C = d01 d12 d02/√(2d01²d12²
+    + 2d12²d02² + 2d02²d01² − d01⁴ − d12⁴ − d02⁴); Φ_iC = 2 asin(d_i/(2R_C));
+    R3D_iC = √(R_C² + z_i²/Φ_iC²); θ_iC = acos(z_i/(Φ_iC R3D_iC));
+    α_i = (R_C²Φ_iC² + z_i²)/(½R_C²Φ_iC³ cot(Φ_iC/2) + z_i²); Φ̃ = −½Σα_iΦ_iC;
+    η = ½Σα_iΦ_iC/R3D_iC; Θ̃ = θ_2C − θ_1C − (1−α_2)/tan θ_2C + (1−α_1)/tan θ_1C;
+    β = (1−α_2)/(R3D_2C tan θ_2C) − (1−α_1)/(R3D_1C tan θ_1C); ϑ = (θ_1C + θ_2C)/2;
+    the curvature form ψ, ρ; the hit-error kink covariance (App. A); the circle-solution
+    slopes at the middle hit; the rotation matrix; status bits. All evaluated in forms
+    that stay finite for collinear hits (R_C and R3D_iC are then inf).
+    """
+    h = _as_hits(hits)
+    n = h.shape[0]
+    b = _per_triplet(bfield, n, (3,), "bfield")
+    hv = np.zeros((n, 3, 3)) if hit_var is None else _per_triplet(hit_var, n, (3, 3), "hit_var")
+    return _geometry_kernel(h, b, hv, float(b_threshold))
+
+
+def triplet_fit_ms(geometry, x_over_x0, mass: float = MASS_PION,
+                   bias_correction: bool = False):
+    """MS-only triplet fit, paper eq. 1, from a `triplet_geometry` table.
+
+    Returns (r3d [mm], sigma_r3d [mm], chi2, sigma_ms [rad], ok):
+    R3D = −(ηΦ̃ sin²ϑ + βΘ̃)/(η² sin²ϑ + β²), σ(R3D) = σ_MS/√(η² sin²ϑ + β²),
+    χ²_min = (βΦ̃ − ηΘ̃)²/(σ_MS²(η² + β²/sin²ϑ)) (1 dof); σ_MS = Highland (eq. 2) at
+    p = κ_c|B|R3D for unit charge and `mass` [MeV] through x/X0 (plane thickness) at the
+    middle hit. bias_correction applies the Belle II factor (DESIGN §15).
+    ok is False for collinear hits or a non-positive R3D (use the curvature form).
+    """
+    g = np.ascontiguousarray(geometry, dtype=np.float64)
+    xx0 = _per_triplet(x_over_x0, g.shape[0], (), "x_over_x0")
+    out, ok = _ms_kernel(g, xx0, float(mass), bool(bias_correction))
+    return out[:, 0], out[:, 1], out[:, 2], out[:, 3], ok
+
+
+def triplet_fit_hit_errors(geometry, x_over_x0, mass: float = MASS_PION):
+    """Triplet fit with hit uncertainties in R3D (paper §2.1.2, App. A, App. C).
+
+    The geometry must have been built with the hit variances. Returns
+    (r3d [mm], sigma_r3d [mm], chi2, b [rad·mm], sigma_ms [rad], status) where R3D is
+    the root of the App. C cubic a3R³ + a2R² + a1R + a0 = 0 (Cardano; root choice in
+    `fit_hit_errors_row`), σ_MS = b/R3D (Highland with b evaluated at the final R3D's
+    predecessor, i.e. the b that enters the last cubic), χ² the effective two-kink χ².
+    """
+    g = np.ascontiguousarray(geometry, dtype=np.float64)
+    xx0 = _per_triplet(x_over_x0, g.shape[0], (), "x_over_x0")
+    out, status = _hit_errors_kernel(g, xx0, float(mass))
+    return out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4], status
+
+
+def triplet_fit_curvature(geometry, x_over_x0, mass: float = MASS_PION,
+                          b_threshold: float = DEFAULT_B_THRESHOLD,
+                          p_min: float = DEFAULT_P_MIN,
+                          straight_below_threshold: bool = False):
+    """Curvature-form triplet fit (finite as B → 0 and for collinear hits).
+
+    Returns (kappa [1/mm], var_kappa [1/mm²], chi2, sigma_ms [rad], ndf, status); see
+    `fit_curvature_row`. Below b_threshold [T], σ_MS is Highland at p_min [MeV].
+    """
+    g = np.ascontiguousarray(geometry, dtype=np.float64)
+    xx0 = _per_triplet(x_over_x0, g.shape[0], (), "x_over_x0")
+    out, ndf, status = _curvature_kernel(g, xx0, float(mass), float(b_threshold),
+                                         float(p_min), bool(straight_below_threshold))
+    return out[:, 0], out[:, 1], out[:, 2], out[:, 3], ndf, status
+
+
+def fit_triplets(hits, bfield, x_over_x0, hit_var=None, *, mass: float = MASS_PION,
+                 b_threshold: float = DEFAULT_B_THRESHOLD, p_min: float = DEFAULT_P_MIN,
+                 form: int = FORM_RADIUS,
+                 straight_below_threshold: bool = False) -> TripletFit:
+    """Fit many hit triplets at once (DESIGN §7.2); one compiled pass, no Python loop.
+
+    hits: (n, 3, 3) [mm], hits 0 → 1 → 2 along the motion; bfield: (3,) or (n, 3) [T] at
+    the middle hit; x_over_x0: scalar or (n,) thickness of the middle plane (normal z)
+    in X0; hit_var: None (hits exact: paper eq. 1) or broadcastable to (n, 3, 3) hit
+    variances of x, y, z [mm²] (App. A/C); mass [MeV]: Highland hypothesis (pion);
+    b_threshold [T] (default 0.05): below it the curvature form with σ_MS at p_min
+    [MeV] (default 1 GeV). 0.05 T is where a triplet's bending over a 100 mm lever arm
+    equals ~1.4 σ_MS for x/X0 = 0.01 at any momentum (κ_c·B·L/(13.6 MeV·√(x/X0)·0.83));
+    below it the curvature carries no useful momentum information.
+    form: FORM_RADIUS (the paper's R3D fit where the field is strong) or FORM_CURVATURE.
+    straight_below_threshold: fix κ = 0 below the threshold (ndf 2).
+    """
+    h = _as_hits(hits)
+    n = h.shape[0]
+    b = _per_triplet(bfield, n, (3,), "bfield")
+    xx0 = _per_triplet(x_over_x0, n, (), "x_over_x0")
+    hv = np.zeros((n, 3, 3)) if hit_var is None else _per_triplet(hit_var, n, (3, 3), "hit_var")
+    if form not in (FORM_RADIUS, FORM_CURVATURE):
+        raise ValueError(f"form must be FORM_RADIUS or FORM_CURVATURE, got {form!r}")
+    geo, fit = fit_triplets_kernel(h, b, xx0, hv, float(mass), float(b_threshold),
+                                   float(p_min), int(form), bool(straight_below_threshold))
+    return TripletFit(
+        kappa=fit[:, F_KAPPA],
+        var_kappa=fit[:, F_VAR_KAPPA],
+        qop=fit[:, F_QOP],
+        var_qop=fit[:, F_VAR_QOP],
+        chi2=fit[:, F_CHI2],
+        ndf=fit[:, F_NDF].astype(np.int32),
+        kink_phi=fit[:, F_KINK_PHI],
+        kink_theta=fit[:, F_KINK_THETA],
+        var_kink_phi=fit[:, F_VAR_KINK_PHI],
+        var_kink_theta=fit[:, F_VAR_KINK_THETA],
+        phi_tilde=geo[:, G_PHI_TILDE],
+        theta_tilde=geo[:, G_THETA_TILDE],
+        tx=fit[:, F_TX],
+        ty=fit[:, F_TY],
+        sigma_ms=fit[:, F_SIGMA_MS],
+        status=fit[:, F_STATUS].astype(np.int32),
+        geometry=geo,
+    )
+
+
+def combine_triplet_chain(offsets, kappa, var_kappa, chi2, ndf=None,
+                          mode: int = COMBINE_CURVATURE):
+    """Combined χ² of chains of conjoined triplets (paper eqs. 3–6), CSR layout.
+
+    Chain j holds triplets offsets[j]:offsets[j+1] (consecutive triplets share two hits).
+    mode COMBINE_CURVATURE (eqs. 5–6): h̄ = Σ(h_i/σ(h_i)²)/Σ(1/σ(h_i)²),
+    χ²_comb = Σχ²_i + Σ(h_i − h̄)²/σ(h_i)², h = κ (signed). mode COMBINE_RADIUS (eqs.
+    3–4): R̄ = ΣR_i²/σ_i² / ΣR_i/σ_i² and χ²_comb = Σχ²_i + Σ(R_i − R̄)²/σ_i(R̄)², with the
+    σ_i of the paper evaluated at the common R̄ through the triplet's relative error
+    (σ_i(R̄) = R̄·σ(κ_i)/|κ_i|), which makes eq. 4 the minimiser of eq. 3.
+    ndf_comb = Σndf_i + (n_triplets − 1). Returns (kappa, var_kappa, chi2, ndf, status).
+    """
+    off = np.ascontiguousarray(offsets, dtype=np.int64)
+    k = np.ascontiguousarray(kappa, dtype=np.float64)
+    n = k.shape[0]
+    v = _per_triplet(var_kappa, n, (), "var_kappa")
+    c = _per_triplet(chi2, n, (), "chi2")
+    d = np.ones(n, dtype=np.int32) if ndf is None else np.ascontiguousarray(
+        np.broadcast_to(np.asarray(ndf, dtype=np.int32), (n,)))
+    if off.ndim != 1 or off.size < 1 or off[0] != 0 or off[-1] != n or np.any(np.diff(off) < 0):
+        raise ValueError("offsets must be non-decreasing, start at 0 and end at len(kappa)")
+    if mode not in (COMBINE_CURVATURE, COMBINE_RADIUS):
+        raise ValueError(f"mode must be COMBINE_CURVATURE or COMBINE_RADIUS, got {mode!r}")
+    return _combine_chain(off, k, v, c, d, int(mode))
+
+
+def combine_triplets(kappa_a, var_kappa_a, chi2_a, kappa_b, var_kappa_b, chi2_b,
+                     ndf_a=1, ndf_b=1, mode: int = COMBINE_CURVATURE):
+    """Combined χ² of pairs of conjoined triplets a, b (paper eqs. 3–6), elementwise.
+
+    Returns (kappa, var_kappa, chi2, ndf, status) per pair; see `combine_triplet_chain`.
+    For two MS-dominated triplets of one track, chi2 follows χ² with ndf = 3.
+    """
+    ka = np.atleast_1d(np.asarray(kappa_a, dtype=np.float64))
+    n = ka.shape[0]
+    k = np.empty(2 * n)
+    v = np.empty(2 * n)
+    c = np.empty(2 * n)
+    d = np.empty(2 * n, dtype=np.int32)
+    k[0::2] = ka
+    k[1::2] = np.broadcast_to(np.asarray(kappa_b, dtype=np.float64), (n,))
+    v[0::2] = np.broadcast_to(np.asarray(var_kappa_a, dtype=np.float64), (n,))
+    v[1::2] = np.broadcast_to(np.asarray(var_kappa_b, dtype=np.float64), (n,))
+    c[0::2] = np.broadcast_to(np.asarray(chi2_a, dtype=np.float64), (n,))
+    c[1::2] = np.broadcast_to(np.asarray(chi2_b, dtype=np.float64), (n,))
+    d[0::2] = np.broadcast_to(np.asarray(ndf_a, dtype=np.int32), (n,))
+    d[1::2] = np.broadcast_to(np.asarray(ndf_b, dtype=np.int32), (n,))
+    return combine_triplet_chain(np.arange(0, 2 * n + 1, 2), k, v, c, d, mode)
