@@ -98,7 +98,7 @@ def beamline_states(ext, z_first, first_states, first_covs, out_z, out_states, o
     """Beamline state of each track from its optimal state at the first hit (z_first [mm])."""
     jac = np.empty((5, 5))
     noise = np.empty((5, 5))
-    work = np.empty((4, 5, 5))
+    work = np.empty((6, 5, 5))
     for t in range(z_first.size):
         s = first_states[t]
         t2 = s[2] * s[2] + s[3] * s[3]

@@ -8,7 +8,7 @@ compiled step function registered for that NamedTuple class:
 which transports ``state_in`` (x, y, tx, ty, q/p) at z_from [mm] to z_to, writes the
 transported state, the transport Jacobian F = ∂state_out/∂state_in (5×5) and the
 process noise Q (5×5, added at z_to: C_out = F·C·Fᵀ + Q), and returns a status code
-(`STATUS_OK` or a failure). ``work`` is (4, 5, 5) float64 scratch.
+(`STATUS_OK` or a failure). ``work`` is (6, 5, 5) float64 scratch.
 
 Material convention shared by every extrapolator: the state at a plane is the state
 *downstream* of that plane's material, so a step between z1 < z2 (in either

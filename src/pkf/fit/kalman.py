@@ -45,7 +45,6 @@ import numba as nb
 import numpy as np
 
 from pkf.fit.extrapolator import (
-    STATUS_EXTRAPOLATION_FAILED,
     STATUS_NOT_POSITIVE_DEFINITE,
     STATUS_OK,
     STATUS_TOO_FEW_HITS,
@@ -164,7 +163,6 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     lin = vec5[:5]
     chi2 = 0.0
     tmp = mats[0]
-    tmp2 = mats[1]
     # ---- forward filter
     # The seed prior: at the pattern estimate, or, once a previous fit exists, at its
     # optimal first state, so that the prior biases nothing at convergence.
@@ -375,7 +373,7 @@ def fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node
     noise = np.empty((max_nodes, 5, 5))
     offset = np.empty((max_nodes, 5))
     ref = np.empty((max_nodes, 5))
-    work = np.empty((4, 5, 5))
+    work = np.empty((6, 5, 5))
     mats = np.empty((6, 5, 5))
     vec5 = np.empty(20)
     perm = np.empty(5, dtype=np.int64)

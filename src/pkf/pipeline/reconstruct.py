@@ -8,7 +8,6 @@ when everything succeeded.
 
 from __future__ import annotations
 
-import hashlib
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -23,17 +22,25 @@ from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import Fitter, get_fitter
 from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch, seed_batch
-from pkf.geometry.detector import SUBDETECTORS, Geometry, load_geometry, parse_geometry
+from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json, check_output_dir, staged_output_dir
-from pkf.io.reader import open_dataset
-from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES, COV_COLUMNS, pack_covariance, table_from_columns
+from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES, pack_covariance, table_from_columns
 from pkf.io.writer import StreamingTableWriter
+from pkf.pipeline.inputs import (
+    STATE_NAMES,
+    _PARTICLE_KEY_BASE,
+    align_mc,
+    column,
+    content_hash,
+    load_dataset,
+    particle_key,
+    production_truth,
+)
 from pkf.pipeline.matching import match_tracks, pattern_metrics, reconstructible_particles
 from pkf.pipeline.truth_pattern import truth_candidates
 
 EVENTS_PER_CHUNK = 500
 PATTERNS = ("triplet", "truth")
-STATE_NAMES = ("x", "y", "tx", "ty", "qop")
 
 
 @dataclass(frozen=True)
@@ -62,34 +69,6 @@ class ReconstructionConfig:
         if self.pattern == "triplet":
             raise NotBuiltYet("--pattern triplet: not built yet (issue #5); use --pattern truth")
         return fitters
-
-
-def dataset_geometry(path: Path, meta: dict) -> Geometry:
-    """The geometry a dataset was simulated with: its ``geometry.toml`` copy, else the
-    built-in named in meta.json; the content hash must match meta.json."""
-    info = meta.get("geometry", {})
-    copy = path / str(info.get("file", "geometry.toml"))
-    if copy.is_file():
-        geometry = parse_geometry(copy.read_text(), source=str(copy))
-    elif "name" in info:
-        geometry = load_geometry(info["name"])
-    else:
-        raise InputError(f"{path / 'meta.json'}: no geometry recorded (key 'geometry')")
-    if "hash" in info and info["hash"] != geometry.content_hash:
-        raise InputError(f"{path}: geometry hash {geometry.content_hash} does not match meta.json ({info['hash']})")
-    return geometry
-
-
-def _content_hash(dataset) -> str:
-    digest = hashlib.sha256()
-    for source in dataset.sources.values():
-        for file in getattr(source, "files", []):
-            digest.update(Path(file).read_bytes())
-    return digest.hexdigest()[:16]
-
-
-def _column(table: pa.Table, name: str, dtype=np.float64) -> np.ndarray:
-    return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)
 
 
 @dataclass
@@ -135,11 +114,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     check_output_dir(out, overwrite)
     if Path(out).resolve() == dataset_path.resolve():
         raise InputError(f"--out {out}: is the input dataset")
-    from pkf.io.reader import read_meta
-
-    meta = read_meta(dataset_path)
-    geometry = dataset_geometry(dataset_path, meta)
-    dataset = open_dataset(dataset_path, layer_z=geometry.layer_z, layer_kind=geometry.layer_kind)
+    geometry, dataset = load_dataset(dataset_path)
     if config.pattern == "truth" and dataset.mc_hits is None:
         raise InputError(f"{dataset_path}: --pattern truth needs mc_hits, and the dataset has none")
     field_map = geometry.reconstruction_field()
@@ -149,11 +124,11 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     beamline_ext = straight_line_extrapolator(geometry)
 
     hits = dataset.hits
-    event_id = _column(hits, "event_id", np.int64)
+    event_id = column(hits, "event_id", np.int64)
     has_mc = dataset.mc_hits is not None
     if has_mc:
-        hit_particle, hit_truth = _align_mc(dataset, event_id)
-        particle_momentum = _production_qop(dataset)
+        hit_particle, hit_truth = align_mc(dataset, event_id)
+        particle_momentum = production_truth(dataset)
     timing = _Timing()
     fit_stats = {f.name: {"wall_s": 0.0, "tracks": 0, "nodes": 0} for f in fitters}
     counts = {"events": int(np.unique(event_id).size), "hits": int(hits.num_rows), "candidates": 0,
@@ -172,25 +147,25 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
             for lo, hi in bounds:
                 chunk = hits.slice(lo, hi - lo)
                 ev = event_id[lo:hi]
-                layer = _column(chunk, "layer", np.int64)
+                layer = column(chunk, "layer", np.int64)
                 with _Clock(timing, "pattern"):
                     cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle[lo:hi])
                     n_tracks, track_of_hit = _global_tracks(cand_event, cand_track)
                     batch = TrackBatch.from_candidates(
-                        geometry, track_of_hit, cand_row, layer, _column(chunk, "u"),
-                        _column(chunk, "v"), _column(chunk, "sigma_u"), _column(chunk, "sigma_v"), n_tracks)
+                        geometry, track_of_hit, cand_row, layer, column(chunk, "u"),
+                        column(chunk, "v"), column(chunk, "sigma_u"), column(chunk, "sigma_v"), n_tracks)
                     seeds, seed_covs, _ = seed_batch(batch, field_map)
                 track_event, track_id = _track_keys(cand_event, cand_track, n_tracks)
-                hit_id = _column(chunk, "hit_id", np.int64)
+                hit_id = column(chunk, "hit_id", np.int64)
                 writers["candidates"].write(table_from_columns(CANDIDATES, {
                     "event_id": cand_event, "track_id": cand_track, "hit_id": hit_id[cand_row]}))
                 counts["candidates"] += n_tracks
                 if has_mc:
-                    particle_key = _particle_key(ev, hit_particle[lo:hi])
-                    mc_id, fraction, ghost = match_tracks(track_of_hit, particle_key[cand_row], n_tracks)
+                    hit_key = particle_key(ev, hit_particle[lo:hi])
+                    mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
                     mc_particle = np.where(mc_id >= 0, mc_id % _PARTICLE_KEY_BASE, -1)
                     matched_all.append(mc_id)
-                    reconstructible_all.append(reconstructible_particles(geometry, particle_key, layer))
+                    reconstructible_all.append(reconstructible_particles(geometry, hit_key, layer))
                 else:
                     mc_particle = np.full(n_tracks, -1, dtype=np.int64)
                     fraction = np.zeros(n_tracks)
@@ -224,7 +199,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
             "pkf_version": pkf.__version__,
             "kind": "run",
             "config": asdict(config) | {"dataset": str(dataset_path)},
-            "input": {"path": str(dataset_path.resolve()), "content_hash": _content_hash(dataset),
+            "input": {"path": str(dataset_path.resolve()), "content_hash": content_hash(dataset),
                       "geometry": geometry.name, "geometry_hash": geometry.content_hash},
             "counts": counts,
             "timing": _timing_json(timing, fit_stats),
@@ -263,46 +238,6 @@ def _track_keys(cand_event, cand_track, n_tracks):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
     return cand_event[new], cand_track[new]
-
-
-_PARTICLE_KEY_BASE = 1 << 24
-
-
-def _particle_key(event_id, particle_id):
-    """A particle id unique across events (0 stays 0 for noise); key % 2²⁴ = particle_id."""
-    return np.where(particle_id > 0, event_id * _PARTICLE_KEY_BASE + particle_id, 0)
-
-
-def _align_mc(dataset, event_id: np.ndarray):
-    """Per hit row: its MC particle (0 for noise or no MC record) and the true state
-    (x, y, tx, ty, q/p) of its mc_hit (NaN for noise), shape (n_hits, 5)."""
-    mc = dataset.mc_hits
-    mc_key = _column(mc, "event_id", np.int64) * (1 << 32) + _column(mc, "hit_id", np.int64)
-    hit_key = event_id * (1 << 32) + _column(dataset.hits, "hit_id", np.int64)
-    order = np.argsort(mc_key, kind="stable")
-    pos = np.minimum(np.searchsorted(mc_key[order], hit_key), max(mc_key.size - 1, 0))
-    idx = order[pos]
-    found = mc_key[idx] == hit_key
-    particle = _column(mc, "particle_id", np.int64)[idx]
-    truth = np.column_stack([_column(mc, c)[idx] for c in STATE_NAMES])
-    truth[~found] = np.nan
-    return np.where(found, particle, 0), truth
-
-
-def _production_qop(dataset) -> dict:
-    """Per particle key: production q/p [1/MeV] and vertex/momentum for beamline truth."""
-    p = dataset.particles
-    if p is None:
-        return {}
-    key = _particle_key(_column(p, "event_id", np.int64), _column(p, "particle_id", np.int64))
-    px, py, pz = _column(p, "px"), _column(p, "py"), _column(p, "pz")
-    mom = np.sqrt(px**2 + py**2 + pz**2)
-    charge = _column(p, "charge")
-    order = np.argsort(key)
-    return {"key": key[order], "qop": (charge / mom)[order], "p": mom[order],
-            "vx": _column(p, "vx")[order], "vy": _column(p, "vy")[order], "vz": _column(p, "vz")[order],
-            "tx": np.divide(px, pz, out=np.full_like(px, np.nan), where=pz != 0)[order],
-            "ty": np.divide(py, pz, out=np.full_like(py, np.nan), where=pz != 0)[order]}
 
 
 def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarray):
@@ -348,7 +283,7 @@ def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_
     production q/p for fitters whose states carry it); at the beamline: the production
     vertex and momentum, straight-line extrapolated to the fitted z."""
     ok = (result.status == STATUS_OK) & (mc_particle > 0)
-    pkey = _particle_key(track_event, mc_particle)
+    pkey = particle_key(track_event, mc_particle)
     pos = np.searchsorted(production["key"], pkey) if production else None
     has_particle = np.zeros(ok.size, dtype=bool)
     if production:

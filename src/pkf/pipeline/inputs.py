@@ -1,0 +1,91 @@
+"""Reading a dataset for a stage: its geometry, validated tables and MC truth aligned to hits."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pkf.errors import InputError
+from pkf.geometry.detector import Geometry, load_geometry, parse_geometry
+from pkf.io.reader import Dataset, open_dataset, read_meta
+
+STATE_NAMES = ("x", "y", "tx", "ty", "qop")
+
+
+def load_dataset(path: str | Path) -> tuple[Geometry, Dataset]:
+    """The geometry of the dataset at `path` and its validated tables (InputError if bad)."""
+    path = Path(path)
+    meta = read_meta(path)
+    geometry = dataset_geometry(path, meta)
+    return geometry, open_dataset(path, layer_z=geometry.layer_z, layer_kind=geometry.layer_kind)
+
+
+def dataset_geometry(path: Path, meta: dict) -> Geometry:
+    """The geometry a dataset was simulated with: its ``geometry.toml`` copy, else the
+    built-in named in meta.json; the content hash must match meta.json."""
+    info = meta.get("geometry", {})
+    copy = path / str(info.get("file", "geometry.toml"))
+    if copy.is_file():
+        geometry = parse_geometry(copy.read_text(), source=str(copy))
+    elif "name" in info:
+        geometry = load_geometry(info["name"])
+    else:
+        raise InputError(f"{path / 'meta.json'}: no geometry recorded (key 'geometry')")
+    if "hash" in info and info["hash"] != geometry.content_hash:
+        raise InputError(f"{path}: geometry hash {geometry.content_hash} does not match meta.json ({info['hash']})")
+    return geometry
+
+
+def content_hash(dataset) -> str:
+    digest = hashlib.sha256()
+    for source in dataset.sources.values():
+        for file in getattr(source, "files", []):
+            digest.update(Path(file).read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def column(table: pa.Table, name: str, dtype=np.float64) -> np.ndarray:
+    return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)
+
+
+_PARTICLE_KEY_BASE = 1 << 24
+
+
+def particle_key(event_id, particle_id):
+    """A particle id unique across events (0 stays 0 for noise); key % 2²⁴ = particle_id."""
+    return np.where(particle_id > 0, event_id * _PARTICLE_KEY_BASE + particle_id, 0)
+
+
+def align_mc(dataset, event_id: np.ndarray):
+    """Per hit row: its MC particle (0 for noise or no MC record) and the true state
+    (x, y, tx, ty, q/p) of its mc_hit (NaN for noise), shape (n_hits, 5)."""
+    mc = dataset.mc_hits
+    mc_key = column(mc, "event_id", np.int64) * (1 << 32) + column(mc, "hit_id", np.int64)
+    hit_key = event_id * (1 << 32) + column(dataset.hits, "hit_id", np.int64)
+    order = np.argsort(mc_key, kind="stable")
+    pos = np.minimum(np.searchsorted(mc_key[order], hit_key), max(mc_key.size - 1, 0))
+    idx = order[pos]
+    found = mc_key[idx] == hit_key
+    particle = column(mc, "particle_id", np.int64)[idx]
+    truth = np.column_stack([column(mc, c)[idx] for c in STATE_NAMES])
+    truth[~found] = np.nan
+    return np.where(found, particle, 0), truth
+
+
+def production_truth(dataset) -> dict:
+    """Per particle key: production q/p [1/MeV] and vertex/momentum for beamline truth."""
+    p = dataset.particles
+    if p is None:
+        return {}
+    key = particle_key(column(p, "event_id", np.int64), column(p, "particle_id", np.int64))
+    px, py, pz = column(p, "px"), column(p, "py"), column(p, "pz")
+    mom = np.sqrt(px**2 + py**2 + pz**2)
+    charge = column(p, "charge")
+    order = np.argsort(key)
+    return {"key": key[order], "qop": (charge / mom)[order], "p": mom[order],
+            "vx": column(p, "vx")[order], "vy": column(p, "vy")[order], "vz": column(p, "vz")[order],
+            "tx": np.divide(px, pz, out=np.full_like(px, np.nan), where=pz != 0)[order],
+            "ty": np.divide(py, pz, out=np.full_like(py, np.nan), where=pz != 0)[order]}
