@@ -3,7 +3,10 @@
 Units everywhere: mm, MeV (c = 1), tesla, rad (DESIGN §2).
 """
 
+import hashlib
+import os
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
 try:
     __version__ = version("pkf")
@@ -11,3 +14,28 @@ except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.0.0+unknown"
 
 __all__ = ["__version__"]
+
+
+def _configure_numba_cache() -> None:
+    """Keep numba's on-disk cache per version of pkf's source.
+
+    numba invalidates a cached kernel only when *its own* file changes, not when a
+    function it calls from another module does; a kernel compiled against an older
+    extrapolation formula would silently survive an upgrade. So the cache lives in a
+    directory named by a hash of all of pkf's source files (content, not time), under
+    $PKF_CACHE_DIR or ~/.cache/pkf. Setting NUMBA_CACHE_DIR yourself overrides this.
+    """
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    root = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    base = Path(os.environ.get("PKF_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pkf")
+    import numba
+
+    numba.config.CACHE_DIR = str(base / "numba" / digest.hexdigest()[:16])
+
+
+_configure_numba_cache()

@@ -95,10 +95,16 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
     click.echo(f"wrote {out}")
 
 
-@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
-def tune() -> None:
-    """Tune the parametrized extrapolations on DATASET (not built yet)."""
-    _not_built("tune", 4)
+@cli.command()
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Parameter file (JSON) to write.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
+def tune(dataset: Path, out: Path, overwrite: bool) -> None:
+    """Tune the parametrized extrapolations on a simulated DATASET (paper §4)."""
+    from pkf.pipeline.tune import run_tuning
+
+    run_tuning(dataset, out, overwrite=overwrite, echo=lambda line: click.echo(line, err=True))
+    click.echo(f"wrote {out}")
 
 
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})

@@ -22,7 +22,7 @@ class TruthSample:
 
     def __init__(self, geometry, events, seed=1, **gun):
         config = SimulationConfig(generator="gun", events=events, seed=seed, **gun)
-        hits, _, mc = simulate_batch(geometry, config, 0, events)
+        hits, particles, mc = simulate_batch(geometry, config, 0, events)
         self.geometry = geometry
         col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
         self.hits = {c: col(hits, c).astype(float) for c in ("u", "v", "sigma_u", "sigma_v")}
@@ -30,6 +30,16 @@ class TruthSample:
         event = col(hits, "event_id").astype(np.int64)
         particle = col(mc, "particle_id").astype(np.int64)
         self.truth = np.column_stack([col(mc, c).astype(float) for c in STATE])
+        # production q/p of each hit's particle (what the parametrized states carry)
+        p_event = col(particles, "event_id").astype(np.int64)
+        p_id = col(particles, "particle_id").astype(np.int64)
+        momentum = np.sqrt(sum(col(particles, c).astype(float) ** 2 for c in ("px", "py", "pz")))
+        p_qop = col(particles, "charge").astype(float) / momentum
+        key = p_event * (1 << 24) + p_id
+        order = np.argsort(key)
+        pos = np.searchsorted(key[order], event * (1 << 24) + particle)
+        pos = np.minimum(pos, key.size - 1)
+        self.production_qop = np.where(particle > 0, p_qop[order][pos], np.nan)
         cand_event, cand_track, rows = truth_candidates(event, self.layer, particle)
         new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
         track = np.cumsum(new) - 1

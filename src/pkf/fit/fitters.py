@@ -30,9 +30,18 @@ def _reference(geometry: Geometry, params=None):
     return reference_extrapolator(geometry)
 
 
+def _parametrized(geometry: Geometry, params=None):
+    from pkf.params.parameter_set import load_parameters
+
+    return load_parameters(geometry, params).extrapolator(geometry)
+
+
 FITTER_NAMES = ("parametrized", "reference", "gx2f", "gsf")
-_NOT_BUILT = {"parametrized": 4, "gx2f": 7, "gsf": 7}
-_BUILT = {"reference": Fitter("reference", _reference, qop_at_production=False)}
+_NOT_BUILT = {"gx2f": 7, "gsf": 7}
+_BUILT = {
+    "parametrized": Fitter("parametrized", _parametrized, qop_at_production=True),
+    "reference": Fitter("reference", _reference, qop_at_production=False),
+}
 
 
 def get_fitter(name: str) -> Fitter:

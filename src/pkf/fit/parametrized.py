@@ -1,0 +1,152 @@
+"""The parametrized extrapolator (paper §4, DESIGN §9.2): no field or material map at fit time.
+
+A step between two nodes is cut into the paper's steps, chosen by the geometry's
+``[[steps]]`` table (the type of each subdetector-to-subdetector segment):
+
+- inside a subdetector of type ``velo``: one step of any length (eq. 10);
+- inside a subdetector of type ``ut``/``scifi``: the per-layer steps (eq. 14), chained
+  through layers without a hit (paper §3: no update where there is no measurement);
+- leaving a subdetector by ``velo_to_ut``: one step from the last state inside it to
+  the first layer of the next (eqs. 15–20);
+- leaving by ``ut_to_scifi``: per-layer steps to the subdetector's last layer, then the
+  tabulated step to the next subdetector's first layer (eqs. 21–23).
+
+Each step has its own parameter slot: slot i holds the parameters of the step that
+leaves layer i (the ``velo`` set is shared by all VELO slots). q/p is the momentum at
+production. Only downstream steps exist: the Kalman core's backward filter reuses the
+forward steps (see `pkf.fit.kalman`), so no upstream parameter sets are needed.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from pkf.fit.extrapolator import (
+    STATUS_BELOW_P_MIN,
+    STATUS_EXTRAPOLATION_FAILED,
+    STATUS_OK,
+    register_extrapolator,
+)
+from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, set_identity
+from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
+from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
+
+STEP_NONE = -1
+STEP_VELO = 0
+STEP_VELO_TO_UT = 1
+STEP_UT = 2
+STEP_UT_TO_SCIFI = 3
+STEP_SCIFI = 4
+STEP_CODES = {"velo": STEP_VELO, "velo_to_ut": STEP_VELO_TO_UT, "ut": STEP_UT,
+              "ut_to_scifi": STEP_UT_TO_SCIFI, "scifi": STEP_SCIFI}
+
+
+class ParametrizedExtrapolator(NamedTuple):
+    """Context of the parametrized extrapolator.
+
+    layer_z (L) [mm]; layer_sub (L) subdetector index; sub_first/sub_last (S) first and
+    last layer of each subdetector (−1 if absent); within_type/between_type (S) the step
+    type inside the subdetector and for leaving it (STEP_*); extrapolation (L, 9) and
+    noise (L, 5) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays.
+    """
+
+    layer_z: np.ndarray
+    layer_sub: np.ndarray
+    sub_first: np.ndarray
+    sub_last: np.ndarray
+    within_type: np.ndarray
+    between_type: np.ndarray
+    extrapolation: np.ndarray
+    noise: np.ndarray
+    uts_meta: np.ndarray
+    uts_coef: np.ndarray
+
+
+@nb.njit(cache=True)
+def _layer_of(ext, z):
+    i = np.searchsorted(ext.layer_z, z)
+    if i < ext.layer_z.size and abs(ext.layer_z[i] - z) < 1e-6:
+        return i
+    return -1
+
+
+@nb.njit(cache=True)
+def _apply(ext, kind, slot, cur_state, z0, z1, seg_state, seg_jac):
+    """One paper step of `kind` with the parameters of `slot`; returns a status."""
+    p = ext.extrapolation[slot]
+    if kind == STEP_VELO:
+        velo_step(p, cur_state, z0, z1, seg_state, seg_jac)
+    elif kind == STEP_VELO_TO_UT:
+        if not velo_to_ut_step(p, cur_state, z0, z1, seg_state, seg_jac):
+            return STATUS_EXTRAPOLATION_FAILED
+    elif kind == STEP_UT_TO_SCIFI:
+        status = ut_to_scifi_extrapolate(ext.uts_meta, ext.uts_coef, cur_state, seg_state, seg_jac)
+        if status != 0:
+            return STATUS_BELOW_P_MIN
+    elif kind == STEP_UT or kind == STEP_SCIFI:
+        layer_step(p, cur_state, z0, z1, seg_state, seg_jac)
+    else:
+        return STATUS_EXTRAPOLATION_FAILED
+    return STATUS_OK
+
+
+@nb.njit(cache=True)
+def next_step(ext, cur, target):
+    """(kind, slot, next layer) of the paper step from layer `cur` towards layer `target`."""
+    s = ext.layer_sub[cur]
+    if ext.layer_sub[target] == s:
+        kind = ext.within_type[s]
+        if kind == STEP_VELO:
+            return kind, cur, target
+        return kind, cur, cur + 1
+    last = ext.sub_last[s]
+    leave = ext.between_type[s]
+    if leave == STEP_VELO_TO_UT:
+        return leave, last, last + 1
+    if cur < last:
+        kind = ext.within_type[s]
+        if kind == STEP_VELO:
+            return kind, cur, last
+        return kind, cur, cur + 1
+    return leave, last, last + 1
+
+
+@nb.njit(cache=True)
+def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
+    """Downstream transport between two layers through the chain of paper steps."""
+    copy5(state_in, state_out)
+    set_identity(jac_out)
+    for i in range(5):
+        for j in range(5):
+            noise_out[i, j] = 0.0
+    a = _layer_of(ext, z_from)
+    b = _layer_of(ext, z_to)
+    if a < 0 or b < 0 or b < a:
+        return STATUS_EXTRAPOLATION_FAILED
+    seg_jac = work[0]
+    seg_noise = work[1]
+    tmp = work[2]
+    tmp2 = work[3]
+    seg_state = work[5, 0]
+    cur = a
+    while cur < b:
+        kind, slot, nxt = next_step(ext, cur, b)
+        status = _apply(ext, kind, slot, state_out, ext.layer_z[cur], ext.layer_z[nxt], seg_state, seg_jac)
+        if status != STATUS_OK:
+            return status
+        parametrized_noise(ext.noise[slot], state_out[4], ext.layer_z[nxt] - ext.layer_z[cur], seg_noise)
+        copy5(seg_state, state_out)
+        matmul55(seg_jac, jac_out, tmp)
+        copy55(tmp, jac_out)
+        sandwich(seg_jac, noise_out, tmp, tmp2)
+        for i in range(5):
+            for j in range(5):
+                noise_out[i, j] = tmp2[i, j] + seg_noise[i, j]
+        cur = nxt
+    return STATUS_OK
+
+
+register_extrapolator(ParametrizedExtrapolator, parametrized_step)

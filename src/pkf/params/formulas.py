@@ -1,0 +1,185 @@
+"""The parametrized extrapolation formulas of the paper §4, with analytic Jacobians and noise.
+
+Every function transports ``s = (x, y, tx, ty, qop)`` over one step of a given type,
+writing the new state and the Jacobian F = ∂out/∂in (5×5); q/p is the momentum at
+production and is left unchanged (f_qop = identity, paper §3). Units: mm, 1/MeV.
+
+Step types (DESIGN §9.2):
+
+- `velo_step` — paper eq. 10: f_tx = tx + p0·qop·(z0 + p1)·Δz, f_x = x + ½(tx + f_tx)·Δz,
+  f_y = y + ty·Δz, f_ty = ty; z0 = the start z. Parameters (p0, p1).
+- `layer_step` — paper eq. 14 (UT and SciFi, one set per layer step):
+  f_tx = tx + (p0·qop + p1·qop³ + p2·y²·qop + p6·qop·tx² + p7·qop·ty²)·Δz,
+  f_x = x + [p3·tx + (1 − p3)·f_tx]·Δz, f_ty = ty + p4·qop·tx·sign(y) + p8·qop·tx·ty,
+  f_y = y + [p5·ty + (1 − p5)·f_ty]·Δz. p0…p5 are the paper's; p6…p8 extend it with
+  the slope dependence of the equations of motion, dtx/dz ∝ N·(1 + tx²) ≈ 1 + 1.5·tx² +
+  0.5·ty² and dty/dz ∝ −N·tx·ty (DESIGN §2): without them the curvature of a track with
+  slope 0.25 is off by ~10% (measured: σ(q/p) pulls 1.29 on the telescope).
+- `velo_to_ut_step` — paper eqs. 15–20: ty_UT = ty_V + p0·qop·tx_V·sign(y_V) (17);
+  ∫(dl×B)_x = p1 + p2·z_V + p3·ty_V² (18) so that tx_UT/N_UT = tx_V/N_V + qop·∫(dl×B)_x
+  (15); z_mag = p4 + p5·z_V + p6·z_V² + p7·ty_V² (19); x_UT = x_V + (z_mag − z_V)·tx_V +
+  (z_UT − z_mag)·tx_UT (16); y_UT = y_V + [p8·ty_V + (1 − p8)·ty_UT]·Δz (20).
+
+`parametrized_noise` is paper eq. 11 with a noise floor (DESIGN §15: Allen's failure
+mode for high-momentum, large-slope tracks): Q_txtx = Q_tyty = (p̃0·qop)² + p̃4²,
+Q_xx = (p̃1·Δz)²·Q_txtx, Q_x,tx = p̃2·√(Q_xx·Q_txtx), and likewise y with p̃3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+N_EXTRAPOLATION_PARAMS = 9  # the longest set (VELO→UT); shorter sets use the first entries
+N_NOISE_PARAMS = 5
+
+
+@nb.njit(cache=True, inline="always")
+def _sign(v):
+    return 1.0 if v >= 0.0 else -1.0
+
+
+@nb.njit(cache=True)
+def _identity(jac):
+    for i in range(5):
+        for j in range(5):
+            jac[i, j] = 1.0 if i == j else 0.0
+
+
+@nb.njit(cache=True)
+def velo_step(p, s, z_from, z_to, out, jac):
+    """Paper eq. 10 (VELO ↔ VELO)."""
+    dz = z_to - z_from
+    x, y, tx, ty, qop = s[0], s[1], s[2], s[3], s[4]
+    k = p[0] * (z_from + p[1]) * dz
+    f_tx = tx + k * qop
+    out[0] = x + 0.5 * (tx + f_tx) * dz
+    out[1] = y + ty * dz
+    out[2] = f_tx
+    out[3] = ty
+    out[4] = qop
+    _identity(jac)
+    jac[2, 4] = k
+    jac[0, 2] = dz
+    jac[0, 4] = 0.5 * k * dz
+    jac[1, 3] = dz
+
+
+@nb.njit(cache=True)
+def layer_step(p, s, z_from, z_to, out, jac):
+    """Paper eq. 14 (UT ↔ UT, SciFi ↔ SciFi), extended by slope terms p6…p8."""
+    dz = z_to - z_from
+    x, y, tx, ty, qop = s[0], s[1], s[2], s[3], s[4]
+    sy = _sign(y)
+    kick = (p[0] * qop + p[1] * qop * qop * qop + p[2] * y * y * qop
+            + p[6] * qop * tx * tx + p[7] * qop * ty * ty)
+    f_tx = tx + kick * dz
+    f_ty = ty + p[4] * qop * tx * sy + p[8] * qop * tx * ty
+    out[0] = x + (p[3] * tx + (1.0 - p[3]) * f_tx) * dz
+    out[1] = y + (p[5] * ty + (1.0 - p[5]) * f_ty) * dz
+    out[2] = f_tx
+    out[3] = f_ty
+    out[4] = qop
+    _identity(jac)
+    # ∂f_tx
+    dtx_dy = 2.0 * p[2] * y * qop * dz
+    dtx_dtx = 1.0 + 2.0 * p[6] * qop * tx * dz
+    dtx_dty = 2.0 * p[7] * qop * ty * dz
+    dtx_dqop = (p[0] + 3.0 * p[1] * qop * qop + p[2] * y * y + p[6] * tx * tx + p[7] * ty * ty) * dz
+    jac[2, 1] = dtx_dy
+    jac[2, 2] = dtx_dtx
+    jac[2, 3] = dtx_dty
+    jac[2, 4] = dtx_dqop
+    # ∂f_ty
+    dty_dtx = p[4] * qop * sy + p[8] * qop * ty
+    dty_dty = 1.0 + p[8] * qop * tx
+    dty_dqop = p[4] * tx * sy + p[8] * tx * ty
+    jac[3, 2] = dty_dtx
+    jac[3, 3] = dty_dty
+    jac[3, 4] = dty_dqop
+    # ∂f_x = ∂x + [p3·∂tx + (1 − p3)·∂f_tx]·Δz
+    w = (1.0 - p[3]) * dz
+    jac[0, 1] = w * dtx_dy
+    jac[0, 2] = p[3] * dz + w * dtx_dtx
+    jac[0, 3] = w * dtx_dty
+    jac[0, 4] = w * dtx_dqop
+    # ∂f_y
+    v = (1.0 - p[5]) * dz
+    jac[1, 2] = v * dty_dtx
+    jac[1, 3] = p[5] * dz + v * dty_dty
+    jac[1, 4] = v * dty_dqop
+
+
+@nb.njit(cache=True)
+def velo_to_ut_step(p, s, z_from, z_to, out, jac):
+    """Paper eqs. 15–20 (last VELO state → first UT layer). Returns False if the kink
+    is unphysical (|tx_UT/N_UT| ≥ 1)."""
+    dz = z_to - z_from
+    x, y, tx, ty, qop = s[0], s[1], s[2], s[3], s[4]
+    sy = _sign(y)
+    ty_ut = ty + p[0] * qop * tx * sy  # (17)
+    field_integral = p[1] + p[2] * z_from + p[3] * ty * ty  # (18)
+    n_v = math.sqrt(1.0 + tx * tx + ty * ty)
+    a = tx / n_v + qop * field_integral  # (15): tx_UT / N_UT
+    if not abs(a) < 1.0:
+        return False
+    r = math.sqrt(1.0 + ty_ut * ty_ut)
+    c = math.sqrt(1.0 - a * a)
+    tx_ut = a * r / c
+    z_mag = p[4] + p[5] * z_from + p[6] * z_from * z_from + p[7] * ty * ty  # (19)
+    out[0] = x + (z_mag - z_from) * tx + (z_to - z_mag) * tx_ut  # (16)
+    out[1] = y + (p[8] * ty + (1.0 - p[8]) * ty_ut) * dz  # (20)
+    out[2] = tx_ut
+    out[3] = ty_ut
+    out[4] = qop
+    _identity(jac)
+    # derivatives of ty_UT
+    dtyut_dtx = p[0] * qop * sy
+    dtyut_dqop = p[0] * tx * sy
+    # derivatives of a = tx/N + qop·I
+    n3 = n_v * n_v * n_v
+    da_dtx = (1.0 + ty * ty) / n3
+    da_dty = -tx * ty / n3 + qop * 2.0 * p[3] * ty
+    da_dqop = field_integral
+    # tx_UT = a·r/c: ∂/∂a = r/c³, ∂/∂ty_UT = a·ty_UT/(r·c)
+    dtxut_da = r / (c * c * c)
+    dtxut_dtyut = a * ty_ut / (r * c)
+    dtxut_dtx = dtxut_da * da_dtx + dtxut_dtyut * dtyut_dtx
+    dtxut_dty = dtxut_da * da_dty + dtxut_dtyut  # ∂ty_UT/∂ty = 1
+    dtxut_dqop = dtxut_da * da_dqop + dtxut_dtyut * dtyut_dqop
+    jac[2, 2] = dtxut_dtx
+    jac[2, 3] = dtxut_dty
+    jac[2, 4] = dtxut_dqop
+    jac[3, 2] = dtyut_dtx
+    jac[3, 3] = 1.0
+    jac[3, 4] = dtyut_dqop
+    # x_UT: ∂z_mag/∂ty = 2·p7·ty
+    dzmag_dty = 2.0 * p[7] * ty
+    lever = z_to - z_mag
+    jac[0, 2] = (z_mag - z_from) + lever * dtxut_dtx
+    jac[0, 3] = dzmag_dty * (tx - tx_ut) + lever * dtxut_dty
+    jac[0, 4] = lever * dtxut_dqop
+    # y_UT
+    w = (1.0 - p[8]) * dz
+    jac[1, 2] = w * dtyut_dtx
+    jac[1, 3] = p[8] * dz + w
+    jac[1, 4] = w * dtyut_dqop
+    return True
+
+
+@nb.njit(cache=True)
+def parametrized_noise(pn, qop, dz, noise):
+    """Paper eq. 11 with a noise floor pn[4]: fills the 5×5 noise matrix (no q/p noise)."""
+    for i in range(5):
+        for j in range(5):
+            noise[i, j] = 0.0
+    q_tt = (pn[0] * qop) ** 2 + pn[4] * pn[4]
+    q_xx = (pn[1] * dz) ** 2 * q_tt
+    root = math.sqrt(q_xx * q_tt)
+    noise[0, 0] = q_xx
+    noise[1, 1] = q_xx
+    noise[2, 2] = q_tt
+    noise[3, 3] = q_tt
+    noise[0, 2] = noise[2, 0] = pn[2] * root
+    noise[1, 3] = noise[3, 1] = pn[3] * root

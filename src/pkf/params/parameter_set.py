@@ -1,0 +1,177 @@
+"""Parameter sets of the parametrized extrapolator: JSON format, loading, shipped defaults.
+
+A parameter file (``pkf tune`` writes it) holds, for one geometry (checked by its
+content hash), the extrapolation and noise parameters of every step slot (slot i: the
+step leaving layer i, see `pkf.fit.parametrized`), the UT→SciFi table if the geometry
+has such a step, and metadata: geometry and field-map hashes, the tuning sample, the
+date, the pkf version and every fit's status.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from pkf.errors import InputError
+from pkf.fit.parametrized import STEP_CODES, STEP_NONE, ParametrizedExtrapolator
+from pkf.geometry.detector import SUBDETECTORS, Geometry
+from pkf.io.atomic import atomic_write_json
+from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS
+from pkf.params.ut_to_scifi import UTSciFiTable
+
+FORMAT = "pkf-params/1"
+
+
+@dataclass(frozen=True)
+class SlotStructure:
+    """Which step leaves each layer (DESIGN §9.2, from the geometry's [[steps]] table)."""
+
+    layer_sub: np.ndarray
+    sub_first: np.ndarray
+    sub_last: np.ndarray
+    within_type: np.ndarray
+    between_type: np.ndarray
+
+    def slot_kind(self, slot: int) -> int:
+        """The step type whose parameters live in `slot` (STEP_NONE for the last layer)."""
+        s = self.layer_sub[slot]
+        if slot == self.sub_last[s]:
+            return int(self.between_type[s])
+        return int(self.within_type[s])
+
+
+def slot_structure(geometry: Geometry) -> SlotStructure:
+    """Derive the subdetector ranges and step types of `geometry`."""
+    sub = geometry.layer_subdetector.astype(np.int64)
+    n_sub = len(SUBDETECTORS)
+    first = np.full(n_sub, -1, dtype=np.int64)
+    last = np.full(n_sub, -1, dtype=np.int64)
+    for s in range(n_sub):
+        idx = np.flatnonzero(sub == s)
+        if idx.size:
+            if np.any(np.diff(idx) != 1):
+                raise InputError(f"{geometry.source}: the layers of subdetector {SUBDETECTORS[s]!r} are not contiguous in z")
+            first[s], last[s] = idx[0], idx[-1]
+    within = np.full(n_sub, STEP_NONE, dtype=np.int64)
+    between = np.full(n_sub, STEP_NONE, dtype=np.int64)
+    present = [s for s in np.argsort(np.where(first >= 0, first, 10**9)) if first[s] >= 0]
+    for i, s in enumerate(present):
+        name = SUBDETECTORS[s]
+        if (name, name) in geometry.steps:
+            within[s] = STEP_CODES[geometry.steps[(name, name)]]
+        elif last[s] > first[s]:
+            raise InputError(f"{geometry.source}: no [[steps]] entry from {name!r} to {name!r}")
+        if i + 1 < len(present):
+            nxt = SUBDETECTORS[present[i + 1]]
+            if (name, nxt) not in geometry.steps:
+                raise InputError(f"{geometry.source}: no [[steps]] entry from {name!r} to {nxt!r}")
+            between[s] = STEP_CODES[geometry.steps[(name, nxt)]]
+    return SlotStructure(sub, first, last, within, between)
+
+
+@dataclass
+class ParameterSet:
+    """Tuned parameters for one geometry. extrapolation (L, 9), noise (L, 5) per slot."""
+
+    geometry_name: str
+    geometry_hash: str
+    extrapolation: np.ndarray
+    noise: np.ndarray
+    ut_to_scifi: UTSciFiTable | None = None
+    metadata: dict = field(default_factory=dict)
+
+    def extrapolator(self, geometry: Geometry) -> ParametrizedExtrapolator:
+        """The numba context for the Kalman core."""
+        self.check_geometry(geometry, source="parameters")
+        slots = slot_structure(geometry)
+        if self.ut_to_scifi is not None:
+            meta, coef = self.ut_to_scifi.as_arrays()
+        else:
+            meta, coef = np.zeros(16), np.zeros((4, 1, 1, 1))
+        return ParametrizedExtrapolator(
+            geometry.layer_z.astype(np.float64), slots.layer_sub, slots.sub_first, slots.sub_last,
+            slots.within_type, slots.between_type, np.ascontiguousarray(self.extrapolation, dtype=np.float64),
+            np.ascontiguousarray(self.noise, dtype=np.float64), meta, coef,
+        )
+
+    def check_geometry(self, geometry: Geometry, source: str) -> None:
+        if self.geometry_hash != geometry.content_hash:
+            raise InputError(
+                f"{source}: parameters are for geometry {self.geometry_name!r} (hash {self.geometry_hash}), "
+                f"not for {geometry.name!r} (hash {geometry.content_hash}); run pkf tune for it"
+            )
+
+    def to_json_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "geometry": {"name": self.geometry_name, "hash": self.geometry_hash},
+            "metadata": self.metadata,
+            "slots": [
+                {"slot": i, "extrapolation": [float(v) for v in self.extrapolation[i]],
+                 "noise": [float(v) for v in self.noise[i]]}
+                for i in range(self.extrapolation.shape[0])
+            ],
+            "ut_to_scifi": self.ut_to_scifi.to_json_dict() if self.ut_to_scifi is not None else None,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        return atomic_write_json(self.to_json_dict(), path)
+
+    @classmethod
+    def from_json_dict(cls, data: dict, source: str = "<params>") -> ParameterSet:
+        try:
+            if data.get("format") != FORMAT:
+                raise InputError(f"{source}: not a pkf parameter file (format {data.get('format')!r}, expected {FORMAT!r})")
+            slots = data["slots"]
+            extrapolation = np.zeros((len(slots), N_EXTRAPOLATION_PARAMS))
+            noise = np.zeros((len(slots), N_NOISE_PARAMS))
+            for i, slot in enumerate(slots):
+                extrapolation[i, : len(slot["extrapolation"])] = slot["extrapolation"]
+                noise[i, : len(slot["noise"])] = slot["noise"]
+            table = data.get("ut_to_scifi")
+            return cls(
+                geometry_name=data["geometry"]["name"], geometry_hash=data["geometry"]["hash"],
+                extrapolation=extrapolation, noise=noise,
+                ut_to_scifi=UTSciFiTable.from_json_dict(table) if table else None,
+                metadata=dict(data.get("metadata", {})),
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"{source}: malformed parameter file ({type(exc).__name__}: {exc})") from None
+
+    @classmethod
+    def load(cls, path: str | Path) -> ParameterSet:
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise InputError(f"--params {path}: no such file") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"--params {path}: not a JSON parameter file ({exc})") from None
+        if not isinstance(data, dict):
+            raise InputError(f"--params {path}: not a JSON parameter file")
+        return cls.from_json_dict(data, source=str(path))
+
+
+def shipped_parameters(geometry: Geometry) -> ParameterSet:
+    """The tuned default shipped for a built-in geometry (package data)."""
+    resource = resources.files("pkf.params").joinpath("data", f"{geometry.name}.json")
+    if not resource.is_file():
+        raise InputError(
+            f"no shipped parameters for geometry {geometry.name!r}; run `pkf tune` and pass --params"
+        )
+    params = ParameterSet.from_json_dict(json.loads(resource.read_text()), source=f"shipped {geometry.name}.json")
+    params.check_geometry(geometry, source=f"shipped parameters {geometry.name}.json")
+    return params
+
+
+def load_parameters(geometry: Geometry, path: str | Path | None) -> ParameterSet:
+    """`--params FILE` if given (checked against the geometry), else the shipped default."""
+    if path is None:
+        return shipped_parameters(geometry)
+    params = ParameterSet.load(path)
+    params.check_geometry(geometry, source=f"--params {path}")
+    return params

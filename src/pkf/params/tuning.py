@@ -1,0 +1,314 @@
+"""Tuning of the parametrized extrapolations on simulation (paper §4, DESIGN §9.3).
+
+Data set D: consecutive true states of each MC particle (mc_hits, with q/p replaced by
+the production q/p that the parametrized state carries) plus the reference
+extrapolation of the first state: RK4 through the field map with the particle's local
+momentum, no material. Each pair that makes exactly one paper step feeds that step's
+parameter slot (VELO pairs feed the one shared VELO set).
+
+Step 1 (eq. 12): the extrapolation parameters, f_tx before f_x and f_ty before f_y,
+maximising Π[G(f_s(x1) − x2_ref,s; σ) + c] per variable — here a Gaussian core of free
+width σ plus a flat outlier density c = ε/range (ε = 1%). Every extrapolation formula
+is linear in its parameters once the earlier ones are fixed, so least squares gives
+the start values and iminuit the robust maximum.
+
+Step 2 (eq. 13): the noise parameters (p̃0…p̃3 and the floor p̃4, eq. 11) maximising
+Π[G2(f_d − x2_d, f_td − x2_td; Q) + c] over d ∈ {x, y} against the *true* second state.
+
+The UT→SciFi step is tabulated from RK4 through the field map (`pkf.params.ut_to_scifi`);
+only its noise is tuned here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+from iminuit import Minuit
+
+from pkf.fit.parametrized import (
+    STEP_NONE,
+    STEP_SCIFI,
+    STEP_UT,
+    STEP_UT_TO_SCIFI,
+    STEP_VELO,
+    STEP_VELO_TO_UT,
+)
+from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS, layer_step, velo_step, velo_to_ut_step
+from pkf.params.parameter_set import SlotStructure
+from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
+from pkf.physics.transport import rk4_propagate_scalar
+
+OUTLIER_FRACTION = 0.01
+MAX_PAIRS_PER_FIT = 200_000
+REFERENCE_MAX_STEP = 50.0
+
+
+@dataclass
+class StatePairs:
+    """Consecutive true states of particles: layers (la, lb), states x1, x2 (n, 5) with
+    production q/p, and x2_ref (n, 5): RK4 of x1 with its local q/p, no material."""
+
+    layer_a: np.ndarray
+    layer_b: np.ndarray
+    x1: np.ndarray
+    x2: np.ndarray
+    x2_ref: np.ndarray
+
+
+@nb.njit(cache=True)
+def _reference_extrapolations(x1_local, z1, z2, max_step, kind, params, grid, out):
+    for i in range(z1.size):
+        x, y, tx, ty = rk4_propagate_scalar(x1_local[i, 0], x1_local[i, 1], x1_local[i, 2], x1_local[i, 3],
+                                            x1_local[i, 4], z1[i], z2[i], max_step, kind, params, grid)
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = tx
+        out[i, 3] = ty
+        out[i, 4] = x1_local[i, 4]
+
+
+def build_pairs(event: np.ndarray, particle: np.ndarray, layer: np.ndarray, local_state: np.ndarray,
+                production_qop: np.ndarray, layer_z: np.ndarray, field_map) -> StatePairs:
+    """Pairs of consecutive hits of each particle (per hit arrays; particle > 0 only)."""
+    order = np.lexsort((layer, particle, event))
+    event, particle, layer = event[order], particle[order], layer[order]
+    local_state, production_qop = local_state[order], production_qop[order]
+    same = (event[1:] == event[:-1]) & (particle[1:] == particle[:-1]) & (layer[1:] > layer[:-1])
+    a = np.flatnonzero(same)
+    b = a + 1
+    ok = np.all(np.isfinite(local_state[a]), axis=1) & np.all(np.isfinite(local_state[b]), axis=1)
+    a, b = a[ok], b[ok]
+    x1 = local_state[a].copy()
+    x2 = local_state[b].copy()
+    x2_ref = np.empty_like(x1)
+    _reference_extrapolations(np.ascontiguousarray(local_state[a]), layer_z[layer[a]], layer_z[layer[b]],
+                              REFERENCE_MAX_STEP, *field_map.args, x2_ref)
+    x1[:, 4] = production_qop[a]
+    x2[:, 4] = production_qop[b]
+    x2_ref[:, 4] = production_qop[a]
+    return StatePairs(layer[a], layer[b], x1, x2, x2_ref)
+
+
+def pair_slot(slots: SlotStructure, layer_a: np.ndarray, layer_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each pair, the (kind, slot) of the single paper step it makes, or (STEP_NONE, −1)."""
+    sub_a = slots.layer_sub[layer_a]
+    sub_b = slots.layer_sub[layer_b]
+    kind = np.full(layer_a.size, STEP_NONE, dtype=np.int64)
+    slot = np.full(layer_a.size, -1, dtype=np.int64)
+    within = slots.within_type[sub_a]
+    same = sub_a == sub_b
+    velo_like = same & (within == STEP_VELO)
+    kind[velo_like], slot[velo_like] = STEP_VELO, layer_a[velo_like]
+    per_layer = same & np.isin(within, (STEP_UT, STEP_SCIFI)) & (layer_b == layer_a + 1)
+    kind[per_layer], slot[per_layer] = within[per_layer], layer_a[per_layer]
+    leave = slots.between_type[sub_a]
+    last = slots.sub_last[sub_a]
+    crossing = ~same & (layer_b == last + 1)
+    v2u = crossing & (leave == STEP_VELO_TO_UT)
+    kind[v2u], slot[v2u] = STEP_VELO_TO_UT, last[v2u]
+    u2s = crossing & (leave == STEP_UT_TO_SCIFI) & (layer_a == last)
+    kind[u2s], slot[u2s] = STEP_UT_TO_SCIFI, last[u2s]
+    gap = crossing & np.isin(leave, (STEP_UT, STEP_SCIFI)) & (layer_a == last)
+    kind[gap], slot[gap] = leave[gap], last[gap]
+    return kind, slot
+
+
+# ----------------------------------------------------------------------------- robust fits
+
+
+@dataclass
+class FitReport:
+    """Outcome of one minimisation (iminuit): validity, function calls, points used."""
+
+    valid: bool
+    calls: int
+    points: int
+    sigma: float | None = None
+
+    def as_dict(self) -> dict:
+        return {"valid": self.valid, "calls": self.calls, "points": self.points, "sigma": self.sigma}
+
+
+def robust_linear_fit(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, FitReport]:
+    """β maximising Σ log[(1−ε)·G(target − design·β; σ) + ε/range] (eq. 12), σ free."""
+    good = np.all(np.isfinite(design), axis=1) & np.isfinite(target)
+    design, target = design[good], target[good]
+    n, k = design.shape
+    if n < 10 * k:
+        return np.zeros(k), FitReport(False, 0, n)
+    beta0 = np.linalg.lstsq(design, target, rcond=None)[0]
+    resid = target - design @ beta0
+    sigma0 = max(1.4826 * np.median(np.abs(resid - np.median(resid))), 1e-12 * (np.std(target) + 1e-30))
+    span = max(np.ptp(target), 1e-300)
+    # work in units of σ0 for numerical conditioning
+    scale_cols = np.maximum(np.std(design, axis=0), 1e-300)
+    xs = design / scale_cols
+    ys = target / sigma0
+    background = OUTLIER_FRACTION * sigma0 / span
+
+    def nll(par):
+        beta, log_sigma = par[:k], par[k]
+        s = math.exp(log_sigma)
+        r = (ys - xs @ beta) / s
+        dens = (1 - OUTLIER_FRACTION) * np.exp(-0.5 * r * r) / (s * math.sqrt(2 * math.pi)) + background
+        return -np.sum(np.log(dens))
+
+    start = np.concatenate([beta0 * scale_cols / sigma0, [0.0]])
+    m = Minuit(nll, start)
+    m.errordef = Minuit.LIKELIHOOD
+    m.migrad()
+    beta = np.asarray(m.values)[:k] * sigma0 / scale_cols
+    return beta, FitReport(bool(m.valid), int(m.nfcn), n, float(math.exp(m.values[k]) * sigma0))
+
+
+def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, qop: np.ndarray,
+              dz: np.ndarray) -> tuple[np.ndarray, FitReport]:
+    """Noise parameters p̃0…p̃4 (eq. 11 + floor) maximising the 2-D likelihood of eq. 13."""
+    good = np.isfinite(dx) & np.isfinite(dtx) & np.isfinite(dy) & np.isfinite(dty)
+    dx, dtx, dy, dty, qop, dz = dx[good], dtx[good], dy[good], dty[good], qop[good], dz[good]
+    n = dx.size
+    if n < 50:
+        return np.zeros(N_NOISE_PARAMS), FitReport(False, 0, n)
+    q2 = qop * qop
+    slope_spread = np.sqrt(np.mean(np.concatenate([dtx, dty]) ** 2))
+    # start: slope noise ∝ |q/p|, floor small
+    p0 = math.sqrt(max(np.median(np.concatenate([dtx, dty]) ** 2 / np.concatenate([q2, q2])), 1e-12))
+    pos_ratio = np.sqrt(np.median(dx**2) / max(np.median(dtx**2), 1e-30)) / max(np.median(np.abs(dz)), 1e-9)
+    span = max(np.ptp(np.concatenate([dx, dy])) * np.ptp(np.concatenate([dtx, dty])), 1e-300)
+
+    def nll(par):
+        a0, a1, r_x, r_y, floor = par
+        q_tt = (a0 * a0) * q2 + floor * floor
+        q_xx = (a1 * dz) ** 2 * q_tt + 1e-12
+        total = 0.0
+        for d, t, rho in ((dx, dtx, r_x), (dy, dty, r_y)):
+            sx2, st2 = q_xx, q_tt
+            det = sx2 * st2 * (1 - rho * rho)
+            chi2 = (d * d * st2 - 2 * rho * np.sqrt(sx2 * st2) * d * t + t * t * sx2) / det
+            dens = (1 - OUTLIER_FRACTION) * np.exp(-0.5 * chi2) / (2 * math.pi * np.sqrt(det)) + OUTLIER_FRACTION / span
+            total -= np.sum(np.log(dens))
+        return total
+
+    m = Minuit(nll, (p0, max(pos_ratio, 1e-3), 0.0, 0.0, 1e-3 * slope_spread + 1e-9))
+    m.errordef = Minuit.LIKELIHOOD
+    m.limits = [(0, None), (1e-4, 10.0), (-0.99, 0.99), (-0.99, 0.99), (0, None)]
+    m.migrad()
+    return np.abs(np.asarray(m.values)), FitReport(bool(m.valid), int(m.nfcn), n)
+
+
+# ----------------------------------------------------------------------------- per step type
+
+
+def _sign(v):
+    return np.where(v >= 0, 1.0, -1.0)
+
+
+def fit_extrapolation(kind: int, x1: np.ndarray, x2_ref: np.ndarray, z1: np.ndarray, z2: np.ndarray):
+    """Extrapolation parameters (9,) of one slot from its pairs (step 1, eq. 12)."""
+    p = np.zeros(N_EXTRAPOLATION_PARAMS)
+    reports = {}
+    x, y, tx, ty, qop = x1.T
+    dz = z2 - z1
+    if kind == STEP_VELO:
+        beta, reports["tx"] = robust_linear_fit(np.column_stack([qop * z1, qop]), (x2_ref[:, 2] - tx) / dz)
+        p[0] = beta[0]
+        p[1] = beta[1] / beta[0] if beta[0] != 0 else 0.0
+    elif kind in (STEP_UT, STEP_SCIFI):
+        design = np.column_stack([qop, qop**3, y * y * qop, qop * tx * tx, qop * ty * ty])
+        beta, reports["tx"] = robust_linear_fit(design, (x2_ref[:, 2] - tx) / dz)
+        p[0:3] = beta[0:3]
+        p[6:8] = beta[3:5]
+        f_tx = tx + (design @ beta) * dz
+        beta, reports["x"] = robust_linear_fit(((tx - f_tx) * dz)[:, None], x2_ref[:, 0] - x - f_tx * dz)
+        p[3] = beta[0]
+        design = np.column_stack([qop * tx * _sign(y), qop * tx * ty])
+        beta, reports["ty"] = robust_linear_fit(design, x2_ref[:, 3] - ty)
+        p[4], p[8] = beta
+        f_ty = ty + design @ beta
+        beta, reports["y"] = robust_linear_fit(((ty - f_ty) * dz)[:, None], x2_ref[:, 1] - y - f_ty * dz)
+        p[5] = beta[0]
+    elif kind == STEP_VELO_TO_UT:
+        beta, reports["ty"] = robust_linear_fit((qop * tx * _sign(y))[:, None], x2_ref[:, 3] - ty)
+        p[0] = beta[0]
+        n1 = np.sqrt(1 + tx**2 + ty**2)
+        n2 = np.sqrt(1 + x2_ref[:, 2] ** 2 + x2_ref[:, 3] ** 2)
+        beta, reports["tx"] = robust_linear_fit(np.column_stack([qop, qop * z1, qop * ty**2]),
+                                                x2_ref[:, 2] / n2 - tx / n1)
+        p[1:4] = beta
+        ty_ut = ty + p[0] * qop * tx * _sign(y)
+        a = tx / n1 + qop * (p[1] + p[2] * z1 + p[3] * ty**2)
+        tx_ut = a * np.sqrt(1 + ty_ut**2) / np.sqrt(np.maximum(1 - a * a, 1e-12))
+        kink = tx - tx_ut
+        beta, reports["x"] = robust_linear_fit(np.column_stack([kink, kink * z1, kink * z1**2, kink * ty**2]),
+                                               x2_ref[:, 0] - x + z1 * tx - z2 * tx_ut)
+        p[4:8] = beta
+        beta, reports["y"] = robust_linear_fit(((ty - ty_ut) * dz)[:, None], x2_ref[:, 1] - y - ty_ut * dz)
+        p[8] = beta[0]
+    return p, {k: v.as_dict() for k, v in reports.items()}
+
+
+@nb.njit(cache=True)
+def _apply_many(kind, p, x1, z1, z2, uts_meta, uts_coef, out):
+    jac = np.empty((5, 5))
+    for i in range(z1.size):
+        if kind == STEP_VELO:
+            velo_step(p, x1[i], z1[i], z2[i], out[i], jac)
+        elif kind == STEP_VELO_TO_UT:
+            if not velo_to_ut_step(p, x1[i], z1[i], z2[i], out[i], jac):
+                out[i, :] = np.nan
+        elif kind == STEP_UT_TO_SCIFI:
+            if ut_to_scifi_extrapolate(uts_meta, uts_coef, x1[i], out[i], jac) != 0:
+                out[i, :] = np.nan
+        else:
+            layer_step(p, x1[i], z1[i], z2[i], out[i], jac)
+
+
+@dataclass
+class TuningResult:
+    """Parameters per slot and the report of every fit."""
+
+    extrapolation: np.ndarray
+    noise: np.ndarray
+    reports: dict = field(default_factory=dict)
+
+
+def tune_slots(slots: SlotStructure, pairs: StatePairs, layer_z: np.ndarray, uts_arrays, progress=None) -> TuningResult:
+    """Both tuning steps for every slot that has pairs."""
+    n_layers = layer_z.size
+    extrapolation = np.zeros((n_layers, N_EXTRAPOLATION_PARAMS))
+    noise = np.zeros((n_layers, N_NOISE_PARAMS))
+    kind, slot = pair_slot(slots, pairs.layer_a, pairs.layer_b)
+    z1 = layer_z[pairs.layer_a]
+    z2 = layer_z[pairs.layer_b]
+    reports = {}
+    # groups: the VELO set is shared by all VELO slots
+    groups = []
+    velo = kind == STEP_VELO
+    if velo.any():
+        groups.append(("velo", STEP_VELO, np.unique(slot[velo]), np.flatnonzero(velo)))
+    for s in np.unique(slot[(kind >= 0) & ~velo]):
+        sel = np.flatnonzero((slot == s) & ~velo)
+        groups.append((f"slot {s}", int(kind[sel[0]]), np.array([s]), sel))
+    rng = np.random.default_rng(12345)
+    for name, k, members, sel in groups:
+        if sel.size > MAX_PAIRS_PER_FIT:
+            sel = np.sort(rng.choice(sel, MAX_PAIRS_PER_FIT, replace=False))
+        x1, x2, x2r = pairs.x1[sel], pairs.x2[sel], pairs.x2_ref[sel]
+        if k == STEP_UT_TO_SCIFI:
+            p, rep = np.zeros(N_EXTRAPOLATION_PARAMS), {"table": "RK4 tabulation"}
+        else:
+            p, rep = fit_extrapolation(k, x1, x2r, z1[sel], z2[sel])
+        predicted = np.empty_like(x1)
+        _apply_many(k, p, np.ascontiguousarray(x1), z1[sel], z2[sel], *uts_arrays, predicted)
+        d = predicted - x2
+        pn, noise_report = fit_noise(d[:, 0], d[:, 2], d[:, 1], d[:, 3], x1[:, 4], z2[sel] - z1[sel])
+        extrapolation[members] = p
+        noise[members] = pn
+        reports[name] = {"kind": int(k), "slots": [int(m) for m in members], "pairs": int(sel.size),
+                         "extrapolation": rep, "noise": noise_report.as_dict()}
+        if progress is not None:
+            progress(name, reports[name])
+    return TuningResult(extrapolation, noise, reports)
