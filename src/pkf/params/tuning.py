@@ -159,6 +159,7 @@ def robust_linear_fit(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarra
     start = np.concatenate([beta0 * scale_cols / sigma0, [0.0]])
     m = Minuit(nll, start)
     m.errordef = Minuit.LIKELIHOOD
+    m.limits = [(None, None)] * k + [(-7.0, 7.0)]  # σ within e^±7 of the robust start
     m.migrad()
     beta = np.asarray(m.values)[:k] * sigma0 / scale_cols
     return beta, FitReport(bool(m.valid), int(m.nfcn), n, float(math.exp(m.values[k]) * sigma0))
