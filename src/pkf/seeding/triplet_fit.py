@@ -16,8 +16,12 @@ Three fits share one geometry table (`triplet_geometry`, one row per triplet):
 * **Curvature form** — the same linearised kinks written as functions of the signed
   3-D curvature κ = ±1/R3D (as traccc does, DESIGN §15):
   kink(κ) = ψ + ρ·κ with finite ψ, ρ for every triplet, including exactly collinear
-  hits and B = 0 (`triplet_fit_curvature`). It is used where the field is below a
-  threshold (σ_MS then at the seeding momentum p_min) and, on request, everywhere.
+  hits and B = 0 (`triplet_fit_curvature`). Below a field threshold σ_MS is taken at
+  the seeding momentum p_min; above it σ_MS = b·|κ| and κ solves the App. C-type cubic.
+  It is `fit_triplets`' default in every field: it equals the radius form to
+  linearisation order where R_C is well measured, and unlike the radius form it keeps
+  correct κ errors where hit errors dominate (the R3D linearisation around R_C fails
+  when R_C is noise; tests/seeding/test_triplet_statistics.py::test_radius_form_limit).
 
 `fit_triplets` is the one-call interface (hits → κ, q/p, χ², kinks, direction, status);
 `combine_triplets` / `combine_triplet_chain` give the combined χ² of conjoined triplets
@@ -44,6 +48,21 @@ Conventions (all per triplet; hits are ordered along the motion, 0 → 1 → 2):
   the fit has one degree of freedom” (paper §2.1.1). With hit errors the effective
   χ² of §2.1.2 keeps one degree of freedom (the hit positions are not fitted). With
   `straight_below_threshold`, κ ≡ 0 below the field threshold and ndf = 2.
+
+Reading of the paper where its text is ambiguous (the choices made here):
+
+* App. C: the cubic is the stationarity condition of the effective χ² with σ_MS held at
+  the solution (the weights are not differentiated); with σ_MS = b/R3D it is exactly
+  the paper's cubic. It is *not* the minimum of χ²(R3D) with R3D-dependent σ_MS
+  (that one drifts to small momenta, which inflate σ_MS). “b” is b = θ0(p)·R3D from the
+  full Highland formula, updated with p (three passes).
+* App. A eq. 7 is written for a barrel layout (radial/azimuthal/axial errors, tilt
+  angles ω_i) and without a Φ–Θ covariance; here the same chord-angle propagation is
+  done with the 3-D hit covariance in any orientation, keeping the Φ–Θ covariance.
+  It reduces to eq. 7 for a barrel layout (tested).
+* Eq. 4: R̄ = ΣR_i²/σ_i² / ΣR_i/σ_i² is the minimiser of eq. 3 when σ_i ∝ R̄ (the
+  “σ_i(R3D)” of eq. 3 is evaluated at the combined R̄); with σ_i(R̄) = R̄·σ(κ_i)/|κ_i|
+  eqs. 3–4 are then identical to eqs. 5–6 in h = κ.
 """
 
 from __future__ import annotations
@@ -77,6 +96,8 @@ __all__ = [
     "STATUS_INVALID",
     "GEOMETRY_COLUMNS",
     "N_GEOMETRY_COLUMNS",
+    "FIT_COLUMNS",
+    "N_FIT_COLUMNS",
     "TripletFit",
     "triplet_geometry",
     "triplet_fit_ms",
@@ -85,6 +106,10 @@ __all__ = [
     "fit_triplets",
     "fit_triplets_kernel",
     "fit_triplet_row",
+    "triplet_geometry_row",
+    "fit_ms_row",
+    "fit_hit_errors_row",
+    "fit_curvature_row",
     "combine_triplets",
     "combine_triplet_chain",
     "solve_cubic",
@@ -214,6 +239,22 @@ def _cbrt(x):
 
 
 @nb.njit(cache=True)
+def _newton_polish(c3, c2, c1, c0, u):
+    for _ in range(4):
+        f = ((c3 * u + c2) * u + c1) * u + c0
+        fp = (3.0 * c3 * u + 2.0 * c2) * u + c1
+        if fp == 0.0:
+            break
+        un = u - f / fp
+        fn = ((c3 * un + c2) * un + c1) * un + c0
+        if abs(fn) < abs(f):
+            u = un
+        else:
+            break
+    return u
+
+
+@nb.njit(cache=True)
 def solve_cubic(a3, a2, a1, a0, scale):
     """Real roots of a3·x³ + a2·x² + a1·x + a0 = 0 (Cardano), for App. C.
 
@@ -230,28 +271,30 @@ def solve_cubic(a3, a2, a1, a0, scale):
     c1 = a1 * scale
     c0 = a0
     m = max(abs(c3), abs(c2), abs(c1), abs(c0))
-    roots = np.zeros(3)
-    n = 0
     if m == 0.0 or not math.isfinite(m):
         return 0, 0.0, 0.0, 0.0
     c3 /= m
     c2 /= m
     c1 /= m
     c0 /= m
+    u0 = 0.0
+    u1 = 0.0
+    u2 = 0.0
+    n = 0
     if abs(c3) < 1e-13:
         if abs(c2) < 1e-13:
             if c1 != 0.0:
-                roots[0] = -c0 / c1
+                u0 = -c0 / c1
                 n = 1
         else:
             disc = c1 * c1 - 4.0 * c2 * c0
             if disc >= 0.0:
                 sq = math.sqrt(disc)
                 q = -0.5 * (c1 + math.copysign(sq, c1))
-                roots[0] = q / c2
+                u0 = q / c2
                 n = 1
                 if q != 0.0:
-                    roots[1] = c0 / q
+                    u1 = c0 / q
                     n = 2
     else:
         # depressed cubic t³ + p t + q = 0, u = t − b/3
@@ -266,36 +309,28 @@ def solve_cubic(a3, a2, a1, a0, scale):
             # numerically stable: take the larger-magnitude cube root first
             w = _cbrt(-0.5 * q - math.copysign(sq, q))
             t = w - p / (3.0 * w) if w != 0.0 else 0.0
-            roots[0] = t - b / 3.0
+            u0 = t - b / 3.0
             n = 1
         elif p == 0.0:
-            roots[0] = -b / 3.0
+            u0 = -b / 3.0
             n = 1
         else:
             # three real roots (trigonometric form of Cardano's formula)
             r = math.sqrt(-p / 3.0)
-            arg = -0.5 * q / (r * r * r)
-            arg = min(1.0, max(-1.0, arg))
+            arg = min(1.0, max(-1.0, -0.5 * q / (r * r * r)))
             phi = math.acos(arg) / 3.0
-            for k in range(3):
-                roots[k] = 2.0 * r * math.cos(phi - 2.0 * math.pi * k / 3.0) - b / 3.0
+            u0 = 2.0 * r * math.cos(phi) - b / 3.0
+            u1 = 2.0 * r * math.cos(phi - 2.0 * math.pi / 3.0) - b / 3.0
+            u2 = 2.0 * r * math.cos(phi - 4.0 * math.pi / 3.0) - b / 3.0
             n = 3
     # Newton polish on the normalised polynomial (keeps a step only if |f| decreases)
-    for k in range(n):
-        u = roots[k]
-        for _ in range(4):
-            f = ((c3 * u + c2) * u + c1) * u + c0
-            fp = (3.0 * c3 * u + 2.0 * c2) * u + c1
-            if fp == 0.0:
-                break
-            un = u - f / fp
-            fn = ((c3 * un + c2) * un + c1) * un + c0
-            if abs(fn) < abs(f):
-                u = un
-            else:
-                break
-        roots[k] = u * scale
-    return n, roots[0], roots[1], roots[2]
+    if n > 0:
+        u0 = _newton_polish(c3, c2, c1, c0, u0)
+    if n > 1:
+        u1 = _newton_polish(c3, c2, c1, c0, u1)
+    if n > 2:
+        u2 = _newton_polish(c3, c2, c1, c0, u2)
+    return n, u0 * scale, u1 * scale, u2 * scale
 
 
 # ------------------------------------------------------------------------------------
@@ -304,8 +339,8 @@ def solve_cubic(a3, a2, a1, a0, scale):
 
 
 @nb.njit(cache=True)
-def _fit_frame(h, b, weak, rot):
-    """Rotation lab → fit frame (rows e1, e2, e3) written into rot (3×3). Returns ok."""
+def _fit_frame(h, b, weak):
+    """Rotation lab → fit frame, rows e1, e2, e3 (x′ = R·x): returns (ok, r00 … r22)."""
     bmag = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
     if bmag > 0.0:
         ux, uy, uz = b[0] / bmag, b[1] / bmag, b[2] / bmag
@@ -317,7 +352,7 @@ def _fit_frame(h, b, weak, rot):
         cz = h[2, 2] - h[0, 2]
         cn = math.sqrt(cx * cx + cy * cy + cz * cz)
         if cn == 0.0:
-            return False
+            return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         cx /= cn
         cy /= cn
         cz /= cn
@@ -352,24 +387,25 @@ def _fit_frame(h, b, weak, rot):
     e2x = uy * e1z - uz * e1y
     e2y = uz * e1x - ux * e1z
     e2z = ux * e1y - uy * e1x
-    rot[0, 0], rot[0, 1], rot[0, 2] = e1x, e1y, e1z
-    rot[1, 0], rot[1, 1], rot[1, 2] = e2x, e2y, e2z
-    rot[2, 0], rot[2, 1], rot[2, 2] = ux, uy, uz
-    return True
+    return True, e1x, e1y, e1z, e2x, e2y, e2z, ux, uy, uz
 
 
 @nb.njit(cache=True)
-def _chord_gradients(c, gphi, gtheta):
-    """∂φ/∂c and ∂θ/∂c of a chord c (fit frame): φ = atan2(c_y, c_x), θ = atan2(d, c_z)."""
-    d2 = c[0] * c[0] + c[1] * c[1]
+def _chord_gradients(cx, cy, cz):
+    """∂φ/∂c and ∂θ/∂c of a chord c (fit frame), φ = atan2(c_y, c_x), θ = atan2(d, c_z):
+    returns (φ_x, φ_y, θ_x, θ_y, θ_z); ∂φ/∂c_z = 0."""
+    d2 = cx * cx + cy * cy
     d = math.sqrt(d2)
-    s2 = d2 + c[2] * c[2]
-    gphi[0] = -c[1] / d2
-    gphi[1] = c[0] / d2
-    gphi[2] = 0.0
-    gtheta[0] = c[2] * c[0] / (d * s2)
-    gtheta[1] = c[2] * c[1] / (d * s2)
-    gtheta[2] = -d / s2
+    s2 = d2 + cz * cz
+    return -cy / d2, cx / d2, cz * cx / (d * s2), cz * cy / (d * s2), -d / s2
+
+
+@nb.njit(cache=True)
+def _rotate(r, v0, v1, v2):
+    """(r·v) for a rotation given as 9 numbers (row-major) in a 1-D array slice."""
+    return (r[0] * v0 + r[1] * v1 + r[2] * v2,
+            r[3] * v0 + r[4] * v1 + r[5] * v2,
+            r[6] * v0 + r[7] * v1 + r[8] * v2)
 
 
 @nb.njit(cache=True)
@@ -383,35 +419,41 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     status = 0
     bmag = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
     weak = bmag < b_threshold
-    rot = np.empty((3, 3))
-    if not _fit_frame(h, b, weak, rot):
+    ok, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _fit_frame(h, b, weak)
+    if not ok:
         g[G_STATUS] = STATUS_DEGENERATE
         return
-    c01 = np.empty(3)
-    c12 = np.empty(3)
-    for k in range(3):
-        c01[k] = 0.0
-        c12[k] = 0.0
-        for m in range(3):
-            c01[k] += rot[k, m] * (h[1, m] - h[0, m])
-            c12[k] += rot[k, m] * (h[2, m] - h[1, m])
-    c02x = c01[0] + c12[0]
-    c02y = c01[1] + c12[1]
-    d01 = math.hypot(c01[0], c01[1])
-    d12 = math.hypot(c12[0], c12[1])
+    g[G_ROT + 0] = r00
+    g[G_ROT + 1] = r01
+    g[G_ROT + 2] = r02
+    g[G_ROT + 3] = r10
+    g[G_ROT + 4] = r11
+    g[G_ROT + 5] = r12
+    g[G_ROT + 6] = r20
+    g[G_ROT + 7] = r21
+    g[G_ROT + 8] = r22
+    rot = g[G_ROT:G_ROT + 9]
+    ax, ay, az = h[1, 0] - h[0, 0], h[1, 1] - h[0, 1], h[1, 2] - h[0, 2]
+    c01x, c01y, c01z = _rotate(rot, ax, ay, az)
+    ax, ay, az = h[2, 0] - h[1, 0], h[2, 1] - h[1, 1], h[2, 2] - h[1, 2]
+    c12x, c12y, c12z = _rotate(rot, ax, ay, az)
+    c02x = c01x + c12x
+    c02y = c01y + c12y
+    d01 = math.hypot(c01x, c01y)
+    d12 = math.hypot(c12x, c12y)
     d02 = math.hypot(c02x, c02y)
-    z01 = c01[2]
-    z12 = c12[2]
+    z01 = c01z
+    z12 = c12z
     if not (d01 > 0.0 and d12 > 0.0):
         g[G_STATUS] = STATUS_DEGENERATE
         return
-    cross = c01[0] * c12[1] - c01[1] * c12[0]  # > 0: counter-clockwise about B̂
+    cross = c01x * c12y - c01y * c12x  # > 0: counter-clockwise about B̂
     turn = 1.0 if cross >= 0.0 else -1.0
     acr = abs(cross)
     # Bending angles Φ_1C, Φ_2C = twice the inscribed angle opposite each chord (exactly
     # 2·asin(d_i/(2R_C)) of DESIGN §7.2 for Φ < π, and defined beyond a half turn).
-    phi1 = 2.0 * math.atan2(acr, c02x * c12[0] + c02y * c12[1])
-    phi2 = 2.0 * math.atan2(acr, c01[0] * c02x + c01[1] * c02y)
+    phi1 = 2.0 * math.atan2(acr, c02x * c12x + c02y * c12y)
+    phi2 = 2.0 * math.atan2(acr, c01x * c02x + c01y * c02y)
     if phi1 + phi2 > math.pi:
         status |= STATUS_LARGE_BENDING
     # R_C = d01 d12 d02 / √(2d01²d12² + …) = d01 d12 d02 / (2|c01 × c12|)
@@ -456,50 +498,42 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     psi_theta = theta2 - theta1 + oma2 * cot2 - oma1 * cot1
     rho_theta = turn * (q2 * s2 * cot2 - q1 * s1 * cot1)
     # hit errors → kink angles (App. A eq. 7, generalised: chord-angle Jacobian with the
-    # full 3-D hit covariance, which reproduces eq. 7 for a barrel layout)
-    gp01 = np.empty(3)
-    gt01 = np.empty(3)
-    gp12 = np.empty(3)
-    gt12 = np.empty(3)
-    _chord_gradients(c01, gp01, gt01)
-    _chord_gradients(c12, gp12, gt12)
+    # full 3-D hit covariance, which reproduces eq. 7 for a barrel layout).
+    # Φ = φ12 − φ01, Θ = θ12 − θ01; ∂/∂x0 = +∂/∂c01, ∂/∂x1 = −∂/∂c01 − ∂/∂c12,
+    # ∂/∂x2 = +∂/∂c12 (fit frame), then J_lab = J′·R.
+    pa_x, pa_y, ta_x, ta_y, ta_z = _chord_gradients(c01x, c01y, c01z)
+    pb_x, pb_y, tb_x, tb_y, tb_z = _chord_gradients(c12x, c12y, c12z)
     vpp = 0.0
     vpt = 0.0
     vtt = 0.0
-    jp = np.empty(3)
-    jt = np.empty(3)
     for k in range(3):
         if hv[k, 0] == 0.0 and hv[k, 1] == 0.0 and hv[k, 2] == 0.0:
             continue
+        if k == 0:
+            jpx, jpy, jtx, jty, jtz = pa_x, pa_y, ta_x, ta_y, ta_z
+        elif k == 1:
+            jpx, jpy = -(pa_x + pb_x), -(pa_y + pb_y)
+            jtx, jty, jtz = -(ta_x + tb_x), -(ta_y + tb_y), -(ta_z + tb_z)
+        else:
+            jpx, jpy, jtx, jty, jtz = pb_x, pb_y, tb_x, tb_y, tb_z
         for m in range(3):
-            if k == 0:
-                jp[m] = gp01[m]
-                jt[m] = gt01[m]
-            elif k == 1:
-                jp[m] = -(gp01[m] + gp12[m])
-                jt[m] = -(gt01[m] + gt12[m])
-            else:
-                jp[m] = gp12[m]
-                jt[m] = gt12[m]
-        # J_lab = J′·R; V += J_lab diag(hv_k) J_labᵀ
-        for m in range(3):
-            lp = jp[0] * rot[0, m] + jp[1] * rot[1, m] + jp[2] * rot[2, m]
-            lt = jt[0] * rot[0, m] + jt[1] * rot[1, m] + jt[2] * rot[2, m]
+            lp = jpx * rot[m] + jpy * rot[3 + m]
+            lt = jtx * rot[m] + jty * rot[3 + m] + jtz * rot[6 + m]
             vpp += lp * lp * hv[k, m]
             vpt += lp * lt * hv[k, m]
             vtt += lt * lt * hv[k, m]
     # circle-solution direction at the middle hit (lab slopes)
-    phi01 = math.atan2(c01[1], c01[0])
-    phi12 = math.atan2(c12[1], c12[0])
+    phi01 = math.atan2(c01y, c01x)
+    phi12 = math.atan2(c12y, c12x)
     phim = phi01 + 0.5 * turn * phi1
     st = math.sin(vartheta)
     dpx = st * math.cos(phim)
     dpy = st * math.sin(phim)
     dpz = math.cos(vartheta)
-    dz = rot[0, 2] * dpx + rot[1, 2] * dpy + rot[2, 2] * dpz
+    dz = r02 * dpx + r12 * dpy + r22 * dpz
     if abs(dz) > 1e-12:
-        g[G_TXC] = (rot[0, 0] * dpx + rot[1, 0] * dpy + rot[2, 0] * dpz) / dz
-        g[G_TYC] = (rot[0, 1] * dpx + rot[1, 1] * dpy + rot[2, 1] * dpz) / dz
+        g[G_TXC] = (r00 * dpx + r10 * dpy + r20 * dpz) / dz
+        g[G_TYC] = (r01 * dpx + r11 * dpy + r21 * dpz) / dz
     else:
         status |= STATUS_BACKWARD
     g[G_D01] = d01
@@ -534,9 +568,6 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     g[G_BMAG] = bmag
     g[G_PHI01] = phi01
     g[G_PHI12] = phi12
-    for k in range(3):
-        for m in range(3):
-            g[G_ROT + 3 * k + m] = rot[k, m]
     g[G_STATUS] = status
 
 
@@ -672,10 +703,12 @@ def fit_hit_errors_row(g, x_over_x0, mass):
     single-kink solutions −Φ̃/η and −Θ̃/β; the physical root is the one continuously
     connected to eq. 1 as the hit errors vanish. We start from eq. 1, do three
     fixed-point iterations with K frozen, take the positive real Cardano root nearest to
-    that iterate, then recompute b at the new momentum (β and the logarithm of
-    Highland) and solve the cubic once more.
+    that iterate; then b is recomputed at the new momentum (β and the logarithm of
+    Highland make b = θ0·R3D depend weakly on p) and the cubic solved again (root
+    nearest to the previous one), at most three passes, fewer once b is stable to 1e-10.
+    The returned R3D is the exact root of the cubic with the returned b.
 
-    Returns (R3D, σ(R3D), χ², b [rad·mm], σ_MS, status) with
+    Returns (R3D, σ(R3D), χ², b [rad·mm], σ_MS = b/R3D, status) with
     σ(R3D)² = 1/(ρᵀKρ), χ² = rᵀKr at the root, r = (Φ̃ + ηR, Θ̃ + βR).
     """
     status = int(g[G_STATUS])
@@ -687,7 +720,9 @@ def fit_hit_errors_row(g, x_over_x0, mass):
     phit = g[G_PHI_TILDE]
     thet = g[G_THETA_TILDE]
     vpp = g[G_VPP]
-    vpt = g[G_VPT]
+    # the radius form's transverse residual Φ̃ + ηR counts turning along the bending
+    # direction (= turn × the counter-clockwise kink the covariance refers to)
+    vpt = g[G_TURN] * g[G_VPT]
     vtt = g[G_VTT]
     r, w = _ms_only_radius(g)
     if not (r > 0.0 and math.isfinite(r)):
@@ -695,17 +730,22 @@ def fit_hit_errors_row(g, x_over_x0, mass):
     t = _path_x0(g, x_over_x0)
     bmag = g[G_BMAG]
     b = highland_sigma(C_LIGHT * bmag * r, mass, t) * r
-    for _ in range(2):
-        # fixed-point iterations with the weights frozen
-        for _ in range(3):
-            cpp = b * b / (r * r * s2) + vpp
-            ctt = b * b / (r * r) + vtt
-            rkr, rkp, _pkp = _weighted_2x2(cpp, vpt, ctt, eta, beta, phit, thet)
-            if not rkr > 0.0:
+    # fixed-point iterations with the weights frozen, from eq. 1
+    for _ in range(3):
+        cpp = b * b / (r * r * s2) + vpp
+        ctt = b * b / (r * r) + vtt
+        rkr, rkp, _pkp = _weighted_2x2(cpp, vpt, ctt, eta, beta, phit, thet)
+        if not rkr > 0.0:
+            break
+        rn = -rkp / rkr
+        if rn > 0.0:
+            r = rn
+    for it in range(3):
+        if it > 0:  # b at the current momentum (β and the logarithm of Highland)
+            b_new = highland_sigma(C_LIGHT * bmag * r, mass, t) * r
+            if abs(b_new - b) <= 1e-10 * b:
                 break
-            rn = -rkp / rkr
-            if rn > 0.0:
-                r = rn
+            b = b_new
         a3, a2, a1, a0 = _radius_cubic_coefficients(eta, beta, phit, thet, s2,
                                                     vpp, vpt, vtt, b)
         n, x0, x1, x2 = solve_cubic(a3, a2, a1, a0, r)
@@ -714,7 +754,6 @@ def fit_hit_errors_row(g, x_over_x0, mass):
             r = root
         else:
             status |= STATUS_ROOT_FALLBACK
-        b = highland_sigma(C_LIGHT * bmag * r, mass, t) * r
     sms = b / r
     cpp = sms * sms / s2 + vpp
     ctt = sms * sms + vtt
@@ -747,7 +786,10 @@ def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
     Below `b_threshold` σ_MS is Highland at p_min (C fixed: one linear solve); with
     `straight` κ is fixed to 0 there (χ² = ψᵀKψ, ndf 2). Above it σ_MS = b|κ| with b
     from Highland at p = κ_c|B|/|κ|, solved like App. C (cubic in κ, root nearest to
-    the fixed-point iterate started from the MS-only solution, b updated once).
+    the fixed-point iterate started from the MS-only solution; three passes updating b,
+    the returned κ is the exact root for the b of the last pass, σ_MS = b·|κ|).
+    Without hit errors κ̂ is the MS-only solution (σ_MS cancels) and σ_MS is Highland
+    at p = κ_c|B|/|κ̂|. p is capped at 1e8 MeV (σ_MS > 0 for straight tracks).
 
     Returns (κ [1/mm], var κ [1/mm²], χ², σ_MS [rad], ndf, status).
     """
@@ -782,14 +824,20 @@ def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
     hit_errors = vpp > 0.0 or vtt > 0.0
     b = highland_sigma(kc / max(abs(kap), kc / P_MAX), mass, t) / max(abs(kap), kc / P_MAX)
     if hit_errors:
-        for _ in range(2):
-            for _ in range(3):
-                sm = b * max(abs(kap), kc / P_MAX)
-                rkr, rkp, _pkp = _weighted_2x2(sm * sm / s2 + vpp, vpt, sm * sm + vtt,
-                                               rp, rt, pp, pt)
-                if not rkr > 0.0:
+        for _ in range(3):  # fixed-point iterations with the weights frozen
+            sm = b * max(abs(kap), kc / P_MAX)
+            rkr, rkp, _pkp = _weighted_2x2(sm * sm / s2 + vpp, vpt, sm * sm + vtt,
+                                           rp, rt, pp, pt)
+            if not rkr > 0.0:
+                break
+            kap = -rkp / rkr
+        for it in range(3):
+            if it > 0:  # b at the current momentum
+                ak = max(abs(kap), kc / P_MAX)
+                b_new = highland_sigma(kc / ak, mass, t) / ak
+                if abs(b_new - b) <= 1e-10 * b:
                     break
-                kap = -rkp / rkr
+                b = b_new
             a3, a2, a1, a0 = _curvature_cubic_coefficients(rp, rt, pp, pt, s2,
                                                            vpp, vpt, vtt, b)
             scale = max(abs(kap), kc / P_MAX)
@@ -799,8 +847,6 @@ def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
                 kap = root
             else:
                 status |= STATUS_ROOT_FALLBACK
-            ak = max(abs(kap), kc / P_MAX)
-            b = highland_sigma(kc / ak, mass, t) / ak
     sms = b * max(abs(kap), kc / P_MAX)
     cpp = sms * sms / s2 + vpp
     ctt = sms * sms + vtt
@@ -811,27 +857,19 @@ def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
 
 
 @nb.njit(cache=True)
-def _fitted_thetas(g, kap):
-    """Polar angles θ_1(κ), θ_2(κ) of the two segments, linearised around the circle."""
-    th = np.empty(2)
-    turn = g[G_TURN]
-    for i in range(2):
-        if i == 0:
-            phi, s, z, theta = g[G_PHI1], g[G_S1], g[G_Z01], g[G_THETA1]
-        else:
-            phi, s, z, theta = g[G_PHI2], g[G_S2], g[G_Z12], g[G_THETA2]
-        a = s * math.sin(theta)
-        if a <= 0.0:
-            th[i] = theta
-            continue
-        x = 0.5 * phi
-        gm1 = _xcotx_minus_one(x)
-        den = a * a * (1.0 + gm1) + z * z
-        oma = a * a * gm1 / den
-        q = a * a * _xcotx_minus_one_over_2x(x) / den
-        cot = z / a
-        th[i] = theta + oma * cot + kap * turn * q * s * cot
-    return th[0], th[1]
+def _fitted_theta(phi, s, z, theta, turn, kap):
+    """Polar angle θ_i(κ) of a segment, linearised around the circle solution:
+    θ_iC + (1 − α_i) cot θ_iC + κ·turn·((1 − α_i)/Φ_iC)·s_i·cot θ_iC."""
+    a = s * math.sin(theta)
+    if a <= 0.0:
+        return theta
+    x = 0.5 * phi
+    gm1 = _xcotx_minus_one(x)
+    den = a * a * (1.0 + gm1) + z * z
+    oma = a * a * gm1 / den
+    q = a * a * _xcotx_minus_one_over_2x(x) / den
+    cot = z / a
+    return theta + oma * cot + kap * turn * q * s * cot
 
 
 @nb.njit(cache=True)
@@ -916,7 +954,8 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
     phi_in = g[G_PHI01] + 0.5 * turn1
     phi_out = g[G_PHI12] - 0.5 * turn2
     phim = phi_in + 0.5 * _wrap(phi_out - phi_in)
-    th1, th2 = _fitted_thetas(g, kap)
+    th1 = _fitted_theta(phi1, g[G_S1], g[G_Z01], g[G_THETA1], turn, kap)
+    th2 = _fitted_theta(phi2, g[G_S2], g[G_Z12], g[G_THETA2], turn, kap)
     thm = 0.5 * (th1 + th2)
     st = math.sin(thm)
     dpx = st * math.cos(phim)
@@ -1090,7 +1129,8 @@ class TripletFit(NamedTuple):
     kappa        signed 3-D curvature κ = ±1/R3D [1/mm], sign of the charge (fit frame
                  z′ = B̂); below the field threshold the sign is with respect to the
                  chosen axis and κ is not a momentum measurement
-    var_kappa    variance of κ [1/mm²]
+    var_kappa    variance of κ [1/mm²] (with `straight_below_threshold`, below the
+                 threshold: the variance κ would have if it were fitted)
     qop          q/p = κ/(κ_c|B|) [1/MeV]; 0 below the field threshold
     var_qop      its variance [1/MeV²]; 1/p_min² below the field threshold
     chi2, ndf    χ² of the kink fit and its degrees of freedom (1; 2 for straight lines
@@ -1201,8 +1241,8 @@ def triplet_fit_hit_errors(geometry, x_over_x0, mass: float = MASS_PION):
     The geometry must have been built with the hit variances. Returns
     (r3d [mm], sigma_r3d [mm], chi2, b [rad·mm], sigma_ms [rad], status) where R3D is
     the root of the App. C cubic a3R³ + a2R² + a1R + a0 = 0 (Cardano; root choice in
-    `fit_hit_errors_row`), σ_MS = b/R3D (Highland with b evaluated at the final R3D's
-    predecessor, i.e. the b that enters the last cubic), χ² the effective two-kink χ².
+    `fit_hit_errors_row`) for the returned b, σ_MS = b/R3D (Highland, b = θ0(p)·R3D
+    updated with p over three passes), χ² the effective two-kink χ².
     """
     g = np.ascontiguousarray(geometry, dtype=np.float64)
     xx0 = _per_triplet(x_over_x0, g.shape[0], (), "x_over_x0")
@@ -1228,7 +1268,7 @@ def triplet_fit_curvature(geometry, x_over_x0, mass: float = MASS_PION,
 
 def fit_triplets(hits, bfield, x_over_x0, hit_var=None, *, mass: float = MASS_PION,
                  b_threshold: float = DEFAULT_B_THRESHOLD, p_min: float = DEFAULT_P_MIN,
-                 form: int = FORM_RADIUS,
+                 form: int = FORM_CURVATURE,
                  straight_below_threshold: bool = False) -> TripletFit:
     """Fit many hit triplets at once (DESIGN §7.2); one compiled pass, no Python loop.
 
@@ -1240,7 +1280,11 @@ def fit_triplets(hits, bfield, x_over_x0, hit_var=None, *, mass: float = MASS_PI
     [MeV] (default 1 GeV). 0.05 T is where a triplet's bending over a 100 mm lever arm
     equals ~1.4 σ_MS for x/X0 = 0.01 at any momentum (κ_c·B·L/(13.6 MeV·√(x/X0)·0.83));
     below it the curvature carries no useful momentum information.
-    form: FORM_RADIUS (the paper's R3D fit where the field is strong) or FORM_CURVATURE.
+    form: FORM_CURVATURE (default: the curvature form in every field) or FORM_RADIUS
+    (the paper's R3D fit, eq. 1 / App. C, where |B| ≥ b_threshold). Both agree where
+    the circle solution is well measured; when hit errors dominate (relative momentum
+    error ≳ 30%) the R3D linearisation around R_C fails (the fitted R3D can be many
+    times R_C and σ(κ) is then far too small) while the curvature form stays linear.
     straight_below_threshold: fix κ = 0 below the threshold (ndf 2).
     """
     h = _as_hits(hits)
