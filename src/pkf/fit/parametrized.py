@@ -25,7 +25,6 @@ import numba as nb
 import numpy as np
 
 from pkf.fit.extrapolator import (
-    STATUS_BELOW_P_MIN,
     STATUS_EXTRAPOLATION_FAILED,
     STATUS_OK,
     register_extrapolator,
@@ -84,8 +83,8 @@ def _apply(ext, kind, slot, cur_state, z0, z1, seg_state, seg_jac):
             return STATUS_EXTRAPOLATION_FAILED
     elif kind == STEP_UT_TO_SCIFI:
         status = ut_to_scifi_extrapolate(ext.uts_meta, ext.uts_coef, cur_state, seg_state, seg_jac)
-        if status != 0:
-            return STATUS_BELOW_P_MIN
+        if status != STATUS_OK:
+            return status  # STATUS_BELOW_P_MIN, or STATUS_EXTRAPOLATION_FAILED for a bad table
     elif kind == STEP_UT or kind == STEP_SCIFI:
         layer_step(p, cur_state, z0, z1, seg_state, seg_jac)
     else:

@@ -21,7 +21,7 @@ from pkf.fit.parametrized import STEP_CODES, STEP_NONE, ParametrizedExtrapolator
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json
 from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS
-from pkf.params.ut_to_scifi import UTSciFiTable
+from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable
 
 FORMAT = "pkf-params/1"
 
@@ -91,7 +91,7 @@ class ParameterSet:
         if self.ut_to_scifi is not None:
             meta, coef = self.ut_to_scifi.as_arrays()
         else:
-            meta, coef = np.zeros(16), np.zeros((4, 1, 1, 1))
+            meta, coef = np.zeros(META_SIZE), np.zeros((4, 1, 1, 1))
         return ParametrizedExtrapolator(
             geometry.layer_z.astype(np.float64), slots.layer_sub, slots.sub_first, slots.sub_last,
             slots.within_type, slots.between_type, np.ascontiguousarray(self.extrapolation, dtype=np.float64),

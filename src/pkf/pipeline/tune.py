@@ -14,7 +14,7 @@ from pkf.fit.parametrized import STEP_UT_TO_SCIFI
 from pkf.geometry.detector import Geometry
 from pkf.params.parameter_set import ParameterSet, slot_structure
 from pkf.params.tuning import build_pairs, tune_slots
-from pkf.params.ut_to_scifi import UTSciFiTable, tabulate_ut_to_scifi
+from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
 from pkf.pipeline.inputs import align_mc, column, load_dataset, particle_key, production_truth
 
 UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
@@ -58,7 +58,7 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
     table = ut_to_scifi_table(geometry, field_map)
     if table is not None:
         echo(f"tune: UT→SciFi table tabulated with RK4 ({time.perf_counter() - started:.0f} s so far)")
-    uts_arrays = table.as_arrays() if table is not None else (np.zeros(16), np.zeros((4, 1, 1, 1)))
+    uts_arrays = table.as_arrays() if table is not None else (np.zeros(META_SIZE), np.zeros((4, 1, 1, 1)))
 
     def report(name, info):
         noise = info["noise"]
