@@ -119,19 +119,14 @@ def report() -> None:
 @click.option("--seed", default=1, show_default=True, type=int)
 @click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
 def demo(out: Path, events: int, seed: int, overwrite: bool) -> None:
-    """Run the whole chain on the built-in default (what is built of it so far)."""
+    """Simulate, reconstruct with both Kalman fitters and print the headline numbers."""
     from pkf.io.atomic import check_output_dir
-    from pkf.pipeline.simulate import SimulationConfig, run_simulation
+    from pkf.pipeline.demo import run_demo
 
     check_output_dir(out, overwrite)
-    out.mkdir(parents=True, exist_ok=True)
-    dataset = out / "dataset"
-    config = SimulationConfig(generator="bs2phiphi", events=events, seed=seed)
-    meta = run_simulation(config, dataset, overwrite=True)
-    click.echo(f"simulated {meta['counts']['events']} B_s -> phi phi events "
-               f"({meta['counts']['hits']} hits) into {dataset}")
-    click.echo("not built yet: reconstruction (issue #3), parametrized fit (#4), "
-               "triplet seeding (#5), report (#6) — no fit numbers to show")
+    if events <= 0:
+        raise InputError(f"--events: must be a positive number of events, not {events}")
+    run_demo(out, events, seed, overwrite, echo=click.echo)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,7 +14,7 @@ import numba as nb
 import numpy as np
 
 from pkf.fit.extrapolator import STATUS_OK, extrapolate, register_extrapolator
-from pkf.fit.linalg import copy5, copy55, sandwich, set_identity
+from pkf.fit.linalg import copy5, copy55, sandwich, search_sorted, set_identity
 from pkf.fit.reference import add_plane_material
 from pkf.geometry.detector import Geometry
 from pkf.simulation.species import MASS_PION
@@ -73,14 +73,14 @@ def straight_line_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_ou
             noise_out[i, j] = 0.0
     z = z_from
     if z_to > z_from:
-        k = np.searchsorted(ext.plane_z, z_from, side="right")
+        k = search_sorted(ext.plane_z, z_from, True)
         while k < ext.plane_z.size and ext.plane_z[k] <= z_to:
             _straight_segment(state_out, ext.plane_z[k] - z, jac_out, noise_out, work[0], work[1], work[2])
             z = ext.plane_z[k]
             add_plane_material(ext, k, state_out, 1.0, jac_out, noise_out)
             k += 1
     else:
-        k = np.searchsorted(ext.plane_z, z_from, side="right") - 1
+        k = search_sorted(ext.plane_z, z_from, True) - 1
         while k >= 0 and ext.plane_z[k] > z_to:
             _straight_segment(state_out, ext.plane_z[k] - z, jac_out, noise_out, work[0], work[1], work[2])
             z = ext.plane_z[k]

@@ -140,3 +140,21 @@ def is_positive_definite_diag(a):
         if not (a[i, i] > 0.0 and math.isfinite(a[i, i])):
             return False
     return True
+
+
+@nb.njit(cache=True)
+def search_sorted(values, x, right):
+    """np.searchsorted(values, x, side='right' if right else 'left') by bisection.
+
+    numba's np.searchsorted costs ~200 ns on arrays held in a NamedTuple context;
+    this costs ~25 ns for the ~70 planes of a detector.
+    """
+    lo = 0
+    hi = values.size
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if values[mid] < x or (right and values[mid] == x):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo

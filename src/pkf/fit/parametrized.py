@@ -29,7 +29,7 @@ from pkf.fit.extrapolator import (
     STATUS_OK,
     register_extrapolator,
 )
-from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, set_identity
+from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
 from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
 
@@ -65,24 +65,23 @@ class ParametrizedExtrapolator(NamedTuple):
 
 
 @nb.njit(cache=True)
-def _layer_of(ext, z):
-    i = np.searchsorted(ext.layer_z, z)
-    if i < ext.layer_z.size and abs(ext.layer_z[i] - z) < 1e-6:
+def _layer_of(layer_z, z):
+    i = search_sorted(layer_z, z, False)
+    if i < layer_z.size and abs(layer_z[i] - z) < 1e-6:
         return i
     return -1
 
 
 @nb.njit(cache=True)
-def _apply(ext, kind, slot, cur_state, z0, z1, seg_state, seg_jac):
-    """One paper step of `kind` with the parameters of `slot`; returns a status."""
-    p = ext.extrapolation[slot]
+def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
+    """One paper step of `kind` with parameters `p`; returns a status."""
     if kind == STEP_VELO:
         velo_step(p, cur_state, z0, z1, seg_state, seg_jac)
     elif kind == STEP_VELO_TO_UT:
         if not velo_to_ut_step(p, cur_state, z0, z1, seg_state, seg_jac):
             return STATUS_EXTRAPOLATION_FAILED
     elif kind == STEP_UT_TO_SCIFI:
-        status = ut_to_scifi_extrapolate(ext.uts_meta, ext.uts_coef, cur_state, seg_state, seg_jac)
+        status = ut_to_scifi_extrapolate(uts_meta, uts_coef, cur_state, seg_state, seg_jac)
         if status != STATUS_OK:
             return status  # STATUS_BELOW_P_MIN, or STATUS_EXTRAPOLATION_FAILED for a bad table
     elif kind == STEP_UT or kind == STEP_SCIFI:
@@ -93,20 +92,20 @@ def _apply(ext, kind, slot, cur_state, z0, z1, seg_state, seg_jac):
 
 
 @nb.njit(cache=True)
-def next_step(ext, cur, target):
+def next_step(layer_sub, sub_last, within_type, between_type, cur, target):
     """(kind, slot, next layer) of the paper step from layer `cur` towards layer `target`."""
-    s = ext.layer_sub[cur]
-    if ext.layer_sub[target] == s:
-        kind = ext.within_type[s]
+    s = layer_sub[cur]
+    if layer_sub[target] == s:
+        kind = within_type[s]
         if kind == STEP_VELO:
             return kind, cur, target
         return kind, cur, cur + 1
-    last = ext.sub_last[s]
-    leave = ext.between_type[s]
+    last = sub_last[s]
+    leave = between_type[s]
     if leave == STEP_VELO_TO_UT:
         return leave, last, last + 1
     if cur < last:
-        kind = ext.within_type[s]
+        kind = within_type[s]
         if kind == STEP_VELO:
             return kind, cur, last
         return kind, cur, cur + 1
@@ -121,8 +120,10 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
     for i in range(5):
         for j in range(5):
             noise_out[i, j] = 0.0
-    a = _layer_of(ext, z_from)
-    b = _layer_of(ext, z_to)
+    # small helpers get plain arrays: passing the whole context costs ~20 reference counts
+    layer_z = ext.layer_z
+    a = _layer_of(layer_z, z_from)
+    b = _layer_of(layer_z, z_to)
     if a < 0 or b < 0 or b < a:
         return STATUS_EXTRAPOLATION_FAILED
     seg_jac = work[0]
@@ -132,11 +133,12 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
     seg_state = work[5, 0]
     cur = a
     while cur < b:
-        kind, slot, nxt = next_step(ext, cur, b)
-        status = _apply(ext, kind, slot, state_out, ext.layer_z[cur], ext.layer_z[nxt], seg_state, seg_jac)
+        kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type, cur, b)
+        status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
+                        layer_z[cur], layer_z[nxt], seg_state, seg_jac)
         if status != STATUS_OK:
             return status
-        parametrized_noise(ext.noise[slot], state_out[4], ext.layer_z[nxt] - ext.layer_z[cur], seg_noise)
+        parametrized_noise(ext.noise[slot], state_out[4], layer_z[nxt] - layer_z[cur], seg_noise)
         copy5(seg_state, state_out)
         matmul55(seg_jac, jac_out, tmp)
         copy55(tmp, jac_out)

@@ -17,7 +17,7 @@ import numba as nb
 import numpy as np
 
 from pkf.fit.extrapolator import STATUS_EXTRAPOLATION_FAILED, STATUS_OK, register_extrapolator
-from pkf.fit.linalg import copy5, matmul55, sandwich, set_identity, copy55
+from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
 from pkf.geometry.acceptance import in_active_area
 from pkf.geometry.detector import Geometry
 from pkf.physics.materials import (
@@ -146,7 +146,7 @@ def reference_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, w
     tmp2 = work[2]
     z = z_from
     if z_to > z_from:
-        k = np.searchsorted(ext.plane_z, z_from, side="right")  # first plane with z > z_from
+        k = search_sorted(ext.plane_z, z_from, True)  # first plane with z > z_from
         while k < ext.plane_z.size and ext.plane_z[k] <= z_to:
             if not _transport_segment(ext, state_out, z, ext.plane_z[k], jac_out, noise_out, seg_jac, tmp, tmp2):
                 return STATUS_EXTRAPOLATION_FAILED
@@ -154,7 +154,7 @@ def reference_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, w
             add_plane_material(ext, k, state_out, 1.0, jac_out, noise_out)
             k += 1
     else:
-        k = np.searchsorted(ext.plane_z, z_from, side="right") - 1  # last plane with z <= z_from
+        k = search_sorted(ext.plane_z, z_from, True) - 1  # last plane with z <= z_from
         while k >= 0 and ext.plane_z[k] > z_to:
             if not _transport_segment(ext, state_out, z, ext.plane_z[k], jac_out, noise_out, seg_jac, tmp, tmp2):
                 return STATUS_EXTRAPOLATION_FAILED

@@ -289,7 +289,10 @@ def tune_slots(slots: SlotStructure, pairs: StatePairs, layer_z: np.ndarray, uts
     groups = []
     velo = kind == STEP_VELO
     if velo.any():
-        groups.append(("velo", STEP_VELO, np.unique(slot[velo]), np.flatnonzero(velo)))
+        # one shared VELO set: every slot whose step is of the VELO type gets it, also
+        # the upstream modules that tracks from the luminous region never leave from
+        velo_slots = np.array([i for i in range(n_layers - 1) if slots.slot_kind(i) == STEP_VELO])
+        groups.append(("velo", STEP_VELO, velo_slots, np.flatnonzero(velo)))
     for s in np.unique(slot[(kind >= 0) & ~velo]):
         sel = np.flatnonzero((slot == s) & ~velo)
         groups.append((f"slot {s}", int(kind[sel[0]]), np.array([s]), sel))

@@ -123,6 +123,7 @@ def _simulate_batch(
                     out_float[n_hits, 3] = y
                     out_float[n_hits, 4] = zp
                 # Material effects of a thin plane (DESIGN §4).
+                tx_in, ty_in, qop_in = tx, ty, qop
                 t = plane_x0[k] * math.sqrt(1.0 + tx * tx + ty * ty)
                 if t > 0.0:
                     p = 1.0 / abs(qop)
@@ -131,12 +132,16 @@ def _simulate_batch(
                     qop = apply_energy_loss_to_qop(qop, mass[ip], sample_energy_loss(p, mass[ip], t * SI_X0_MM))
                     if is_electron[ip] and np.isfinite(qop):
                         qop = apply_bremsstrahlung_to_qop(qop, mass[ip], sample_bremsstrahlung_fraction(t))
+                stopped = not (np.isfinite(qop) and np.isfinite(tx) and np.isfinite(ty)
+                               and 1.0 / abs(qop) >= envelope_min_p)
                 if record:
-                    out_float[n_hits, 5] = tx
-                    out_float[n_hits, 6] = ty
-                    out_float[n_hits, 7] = qop
+                    # a particle that stops in this plane keeps its incoming state as the
+                    # truth of its last hit (its state after the material is not defined)
+                    out_float[n_hits, 5] = tx_in if stopped else tx
+                    out_float[n_hits, 6] = ty_in if stopped else ty
+                    out_float[n_hits, 7] = qop_in if stopped else qop
                     n_hits += 1
-                if not np.isfinite(qop) or 1.0 / abs(qop) < envelope_min_p:
+                if stopped:
                     break
         # Noise hits: a Poisson number per layer, uniform over the active area.
         for layer in range(layer_kind.size):
