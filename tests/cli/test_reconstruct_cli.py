@@ -79,6 +79,7 @@ def test_reconstruct_bad_input(dataset, tmp_path, capsys):
 
 
 def test_not_built_fitters_say_so(dataset, tmp_path, capsys):
-    code = main(["reconstruct", str(dataset), "--out", str(tmp_path / "r"), "--pattern", "truth"])
+    code = main(["reconstruct", str(dataset), "--out", str(tmp_path / "r"), "--pattern", "truth",
+                 "--fitter", "gsf"])
     assert code == 1 and "not built yet" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
