@@ -66,10 +66,13 @@ def test_velo_to_ut_is_a_kink_at_z_mag():
 def test_noise_matrix_follows_eq_11():
     noise = np.empty((5, 5))
     pn = np.array([2.0, 0.4, 0.8, -0.5, 1e-5])
-    parametrized_noise(pn, 1 / 5000.0, 100.0, noise)
-    q_tt = (2.0 / 5000.0) ** 2 + 1e-10
-    assert noise[2, 2] == pytest.approx(q_tt) and noise[3, 3] == pytest.approx(q_tt)
-    assert noise[0, 0] == pytest.approx((0.4 * 100) ** 2 * q_tt)
-    assert noise[0, 2] == pytest.approx(0.8 * np.sqrt(noise[0, 0] * q_tt))
-    assert noise[1, 3] == pytest.approx(-0.5 * np.sqrt(noise[1, 1] * q_tt))
+    state = np.array([0.0, 0.0, 0.3, -0.1, 1 / 5000.0])
+    parametrized_noise(pn, state, 100.0, noise)
+    n2 = 1 + 0.3**2 + 0.1**2
+    q_txtx = (2.0 / 5000.0) ** 2 * n2**1.5 * (1 + 0.3**2) + 1e-10
+    q_tyty = (2.0 / 5000.0) ** 2 * n2**1.5 * (1 + 0.1**2) + 1e-10
+    assert noise[2, 2] == pytest.approx(q_txtx) and noise[3, 3] == pytest.approx(q_tyty)
+    assert noise[0, 0] == pytest.approx((0.4 * 100) ** 2 * q_txtx)
+    assert noise[0, 2] == pytest.approx(0.8 * np.sqrt(noise[0, 0] * q_txtx))
+    assert noise[1, 3] == pytest.approx(-0.5 * np.sqrt(noise[1, 1] * q_tyty))
     assert np.all(noise[4] == 0) and np.all(np.linalg.eigvalsh(noise[:4, :4]) >= -1e-20)

@@ -50,8 +50,10 @@ def register_extrapolator(context_class: type, step_function) -> None:
 
 
 def extrapolate(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
-    """Dispatch to the registered step of ``type(ext)`` (usable inside numba code only)."""
-    raise NotImplementedError("extrapolate() is resolved inside compiled code")
+    """Dispatch to the registered step of ``type(ext)`` (resolved at compile time inside
+    numba code; this Python body serves NUMBA_DISABLE_JIT=1 debugging)."""
+    step = _STEP_FUNCTIONS[type(ext)]
+    return step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work)
 
 
 @overload(extrapolate)

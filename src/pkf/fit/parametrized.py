@@ -81,9 +81,20 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
         if not velo_to_ut_step(p, cur_state, z0, z1, seg_state, seg_jac):
             return STATUS_EXTRAPOLATION_FAILED
     elif kind == STEP_UT_TO_SCIFI:
-        status = ut_to_scifi_extrapolate(uts_meta, uts_coef, cur_state, seg_state, seg_jac)
+        # The table was made by RK4 with the local momentum; the state carries the one at
+        # production: evaluate it at q/p' = q/p / (1 − ΔE·|q/p|), ΔE = p[0] [MeV] the tuned
+        # mean energy lost upstream of the magnet.
+        qop = cur_state[4]
+        shrink = 1.0 - p[0] * abs(qop)
+        seg_state[:] = cur_state
+        seg_state[4] = qop / shrink
+        status = ut_to_scifi_extrapolate(uts_meta, uts_coef, seg_state, seg_state, seg_jac)
         if status != STATUS_OK:
             return status  # STATUS_BELOW_P_MIN, or STATUS_EXTRAPOLATION_FAILED for a bad table
+        dqop = 1.0 / (shrink * shrink)
+        for i in range(4):
+            seg_jac[i, 4] *= dqop
+        seg_state[4] = qop
     elif kind == STEP_UT or kind == STEP_SCIFI:
         layer_step(p, cur_state, z0, z1, seg_state, seg_jac)
     else:
@@ -138,7 +149,7 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
                         layer_z[cur], layer_z[nxt], seg_state, seg_jac)
         if status != STATUS_OK:
             return status
-        parametrized_noise(ext.noise[slot], state_out[4], layer_z[nxt] - layer_z[cur], seg_noise)
+        parametrized_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_noise)
         copy5(seg_state, state_out)
         matmul55(seg_jac, jac_out, tmp)
         copy55(tmp, jac_out)

@@ -32,6 +32,8 @@ from pkf.simulation.species import MASS_PION
 
 #: Longest RK4 step [mm] of the reference extrapolation.
 REFERENCE_MAX_STEP = 100.0
+#: Largest |tx|, |ty| a transported state may reach (the simulation envelope, DESIGN §5).
+MAX_SLOPE = 10.0
 
 
 class ReferenceExtrapolator(NamedTuple):
@@ -124,6 +126,8 @@ def _transport_segment(ext, state, z_from, z_to, jac, noise, seg_jac, tmp, tmp2)
         if not math.isfinite(new[i]):
             return False
         state[i] = new[i]
+    if abs(state[2]) > MAX_SLOPE or abs(state[3]) > MAX_SLOPE:
+        return False  # curling away from z: outside what a z-parametrised state describes
     matmul55(seg_jac, jac, tmp)
     copy55(tmp, jac)
     sandwich(seg_jac, noise, tmp, tmp2)

@@ -12,9 +12,10 @@ which is harmless for a seed. A weak prior |q/p| ≲ 1/(100 MeV) keeps tracks wi
 field integral (straight lines) solvable; their q/p variance then says so.
 
 Seed covariance for the Kalman filter (DESIGN §8, documented choice):
-diag(100 mm², 100 mm², 0.01, 0.01, (0.1·q/p)²) — loose in position and slope (the
-first measurements fix them), a 10% q/p prior, which the data outweigh by two orders
-of magnitude for long tracks.
+diag(100 mm², 100 mm², 0.01, 0.01, (0.1·q/p)² + σ²_LSQ(q/p)) — loose in position and
+slope (the first measurements fix them), a 10% q/p prior, which the data outweigh by two
+orders of magnitude for long tracks, widened by the least-squares q/p variance for
+tracks whose hits hardly measure q/p.
 """
 
 from __future__ import annotations
@@ -128,7 +129,9 @@ def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid
             out_cov[i, j] = 0.0
     for i in range(4):
         out_cov[i, i] = SEED_VARIANCES[i]
-    out_cov[4, 4] = (SEED_QOP_FRACTION * out_state[4]) ** 2 + 1e-14
+    # 10% of q/p, or the least-squares error where the hits hardly measure q/p (little
+    # field integral, e.g. VELO-only tracks): the prior must never claim more than the data
+    out_cov[4, 4] = (SEED_QOP_FRACTION * out_state[4]) ** 2 + inv[4, 4]
     return inv[4, 4]
 
 

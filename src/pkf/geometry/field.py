@@ -10,6 +10,7 @@ simulation (analytic dipole) and the reference fit (field map) share one transpo
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
@@ -127,7 +128,10 @@ def _dipole_at(params, x, y, z):
 
 @nb.njit(cache=True)
 def _map_at(params, grid, x, y, z):
-    """Trilinear interpolation of the sampled field; outside the grid the edge value."""
+    """Trilinear interpolation of the sampled field; outside the grid the edge value;
+    NaN for a non-finite position (never an out-of-range memory read)."""
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        return math.nan, math.nan, math.nan
     fx = (x - params[_MAP_X0]) / params[_MAP_DX]
     fy = (y - params[_MAP_Y0]) / params[_MAP_DY]
     fz = (z - params[_MAP_Z0]) / params[_MAP_DZ]

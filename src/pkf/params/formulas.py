@@ -20,9 +20,9 @@ Step types (DESIGN §9.2):
   (15); z_mag = p4 + p5·z_V + p6·z_V² + p7·ty_V² (19); x_UT = x_V + (z_mag − z_V)·tx_V +
   (z_UT − z_mag)·tx_UT (16); y_UT = y_V + [p8·ty_V + (1 − p8)·ty_UT]·Δz (20).
 
-`parametrized_noise` is paper eq. 11 with a noise floor (DESIGN §15: Allen's failure
-mode for high-momentum, large-slope tracks): Q_txtx = Q_tyty = (p̃0·qop)² + p̃4²,
-Q_xx = (p̃1·Δz)²·Q_txtx, Q_x,tx = p̃2·√(Q_xx·Q_txtx), and likewise y with p̃3.
+`parametrized_noise` is paper eq. 11 with the path-length factors of Highland scattering
+and a noise floor p̃4 (DESIGN §15: Allen's failure mode for high-momentum, large-slope
+tracks, where the ∝ 1/p noise vanishes below the parametrization error).
 """
 
 from __future__ import annotations
@@ -169,17 +169,28 @@ def velo_to_ut_step(p, s, z_from, z_to, out, jac):
 
 
 @nb.njit(cache=True)
-def parametrized_noise(pn, qop, dz, noise):
-    """Paper eq. 11 with a noise floor pn[4]: fills the 5×5 noise matrix (no q/p noise)."""
+def parametrized_noise(pn, state, dz, noise):
+    """Paper eq. 11 with a noise floor pn[4] and the path-length factors of Highland
+    scattering: fills the 5×5 noise matrix of a step of length dz [mm] at `state`.
+
+    Q_txtx = (p̃0·qop)²·N³·(1 + tx²) + p̃4², Q_tyty likewise with ty (DESIGN §4: θ0² ∝ t
+    ∝ N and Q_txtx = θ0²·N²·(1 + tx²)); Q_xx = (p̃1·Δz)²·Q_txtx, Q_x,tx = p̃2·√(Q_xx·Q_txtx),
+    and y likewise with p̃3. No noise on q/p.
+    """
     for i in range(5):
         for j in range(5):
             noise[i, j] = 0.0
-    q_tt = (pn[0] * qop) ** 2 + pn[4] * pn[4]
-    q_xx = (pn[1] * dz) ** 2 * q_tt
-    root = math.sqrt(q_xx * q_tt)
-    noise[0, 0] = q_xx
-    noise[1, 1] = q_xx
-    noise[2, 2] = q_tt
-    noise[3, 3] = q_tt
-    noise[0, 2] = noise[2, 0] = pn[2] * root
-    noise[1, 3] = noise[3, 1] = pn[3] * root
+    tx = state[2]
+    ty = state[3]
+    n2 = 1.0 + tx * tx + ty * ty
+    scatter = (pn[0] * state[4]) ** 2 * n2 * math.sqrt(n2)
+    floor = pn[4] * pn[4]
+    lever = (pn[1] * dz) ** 2
+    q_txtx = scatter * (1.0 + tx * tx) + floor
+    q_tyty = scatter * (1.0 + ty * ty) + floor
+    noise[2, 2] = q_txtx
+    noise[3, 3] = q_tyty
+    noise[0, 0] = lever * q_txtx
+    noise[1, 1] = lever * q_tyty
+    noise[0, 2] = noise[2, 0] = pn[2] * math.sqrt(lever) * q_txtx
+    noise[1, 3] = noise[3, 1] = pn[3] * math.sqrt(lever) * q_tyty

@@ -38,12 +38,15 @@ from pkf.fit.parametrized import (
 )
 from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS, layer_step, velo_step, velo_to_ut_step
 from pkf.params.parameter_set import SlotStructure
-from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
+from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate, ut_to_scifi_extrapolate_many
 from pkf.physics.transport import rk4_propagate_scalar
 
 OUTLIER_FRACTION = 0.01
 MAX_PAIRS_PER_FIT = 200_000
 REFERENCE_MAX_STEP = 50.0
+#: mm: position residuals below this (nm-scale parametrization errors, irrelevant next to
+#: 10 µm hits) must not drive the noise fit — without it the noise floor p̃4 grew to fit them
+POSITION_RESOLUTION_FLOOR = 1e-3
 
 
 @dataclass
@@ -165,11 +168,16 @@ def robust_linear_fit(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarra
     return beta, FitReport(bool(m.valid), int(m.nfcn), n, float(math.exp(m.values[k]) * sigma0))
 
 
-def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, qop: np.ndarray,
+def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, state: np.ndarray,
               dz: np.ndarray) -> tuple[np.ndarray, FitReport]:
-    """Noise parameters p̃0…p̃4 (eq. 11 + floor) maximising the 2-D likelihood of eq. 13."""
+    """Noise parameters p̃0…p̃4 (`parametrized_noise`) maximising the 2-D likelihood of
+    eq. 13; `state` (n, 5) are the start states of the steps."""
     good = np.isfinite(dx) & np.isfinite(dtx) & np.isfinite(dy) & np.isfinite(dty)
-    dx, dtx, dy, dty, qop, dz = dx[good], dtx[good], dy[good], dty[good], qop[good], dz[good]
+    dx, dtx, dy, dty, state, dz = dx[good], dtx[good], dy[good], dty[good], state[good], dz[good]
+    qop, tx, ty = state[:, 4], state[:, 2], state[:, 3]
+    n2 = 1 + tx * tx + ty * ty
+    path_x = n2 * np.sqrt(n2) * (1 + tx * tx)
+    path_y = n2 * np.sqrt(n2) * (1 + ty * ty)
     n = dx.size
     if n < 50:
         return np.zeros(N_NOISE_PARAMS), FitReport(False, 0, n)
@@ -182,11 +190,10 @@ def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, 
 
     def nll(par):
         a0, a1, r_x, r_y, floor = par
-        q_tt = (a0 * a0) * q2 + floor * floor
-        q_xx = (a1 * dz) ** 2 * q_tt + 1e-12
         total = 0.0
-        for d, t, rho in ((dx, dtx, r_x), (dy, dty, r_y)):
-            sx2, st2 = q_xx, q_tt
+        for d, t, rho, path in ((dx, dtx, r_x, path_x), (dy, dty, r_y, path_y)):
+            st2 = (a0 * a0) * q2 * path + floor * floor
+            sx2 = (a1 * dz) ** 2 * st2 + POSITION_RESOLUTION_FLOOR**2
             det = sx2 * st2 * (1 - rho * rho)
             chi2 = (d * d * st2 - 2 * rho * np.sqrt(sx2 * st2) * d * t + t * t * sx2) / det
             dens = (1 - OUTLIER_FRACTION) * np.exp(-0.5 * chi2) / (2 * math.pi * np.sqrt(det)) + OUTLIER_FRACTION / span
@@ -261,10 +268,36 @@ def _apply_many(kind, p, x1, z1, z2, uts_meta, uts_coef, out):
             if not velo_to_ut_step(p, x1[i], z1[i], z2[i], out[i], jac):
                 out[i, :] = np.nan
         elif kind == STEP_UT_TO_SCIFI:
-            if ut_to_scifi_extrapolate(uts_meta, uts_coef, x1[i], out[i], jac) != 0:
+            shifted = x1[i].copy()
+            shifted[4] = x1[i, 4] / (1.0 - p[0] * abs(x1[i, 4]))
+            if ut_to_scifi_extrapolate(uts_meta, uts_coef, shifted, out[i], jac) != 0:
                 out[i, :] = np.nan
+            out[i, 4] = x1[i, 4]
         else:
             layer_step(p, x1[i], z1[i], z2[i], out[i], jac)
+
+
+def fit_table_energy_loss(x1: np.ndarray, x2_ref: np.ndarray, uts_arrays):
+    """ΔE (p[0], MeV) of the UT→SciFi table step: the mean energy lost upstream of the
+    magnet, so that the table (made with the local momentum) is evaluated at
+    q/p' = q/p/(1 − ΔE·|q/p|). Linear in ΔE to first order: Δtx ≈ ∂tx/∂qop·ΔE·qop·|qop|."""
+    p = np.zeros(N_EXTRAPOLATION_PARAMS)
+    predicted = np.empty_like(x1)
+    jacobians = np.empty((x1.shape[0], 5, 5))
+    status = np.empty(x1.shape[0], dtype=np.int64)
+    reports = {}
+    for iteration in range(2):
+        shrink = 1.0 - p[0] * np.abs(x1[:, 4])
+        shifted = x1.copy()
+        shifted[:, 4] = x1[:, 4] / shrink
+        ut_to_scifi_extrapolate_many(*uts_arrays, np.ascontiguousarray(shifted), predicted, jacobians, status)
+        ok = status == 0
+        design = (jacobians[:, 2, 4] * shifted[:, 4] * np.abs(shifted[:, 4]))[ok][:, None]
+        beta, report = robust_linear_fit(design, (x2_ref[:, 2] - predicted[:, 2])[ok])
+        p[0] += beta[0]
+        reports[f"energy_loss_pass{iteration}"] = report.as_dict()
+    reports["delta_e_mev"] = float(p[0])
+    return p, reports
 
 
 @dataclass
@@ -302,13 +335,13 @@ def tune_slots(slots: SlotStructure, pairs: StatePairs, layer_z: np.ndarray, uts
             sel = np.sort(rng.choice(sel, MAX_PAIRS_PER_FIT, replace=False))
         x1, x2, x2r = pairs.x1[sel], pairs.x2[sel], pairs.x2_ref[sel]
         if k == STEP_UT_TO_SCIFI:
-            p, rep = np.zeros(N_EXTRAPOLATION_PARAMS), {"table": "RK4 tabulation"}
+            p, rep = fit_table_energy_loss(x1, x2r, uts_arrays)
         else:
             p, rep = fit_extrapolation(k, x1, x2r, z1[sel], z2[sel])
         predicted = np.empty_like(x1)
         _apply_many(k, p, np.ascontiguousarray(x1), z1[sel], z2[sel], *uts_arrays, predicted)
         d = predicted - x2
-        pn, noise_report = fit_noise(d[:, 0], d[:, 2], d[:, 1], d[:, 3], x1[:, 4], z2[sel] - z1[sel])
+        pn, noise_report = fit_noise(d[:, 0], d[:, 2], d[:, 1], d[:, 3], x1, z2[sel] - z1[sel])
         extrapolation[members] = p
         noise[members] = pn
         reports[name] = {"kind": int(k), "slots": [int(m) for m in members], "pairs": int(sel.size),

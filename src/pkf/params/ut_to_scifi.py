@@ -87,6 +87,8 @@ smooth field an 11×11 grid is already accurate to a few µm.
 
 from __future__ import annotations
 
+import base64
+
 import math
 import time
 from dataclasses import dataclass, field
@@ -212,12 +214,14 @@ class UTSciFiTable:
         return meta, self.coef
 
     def to_json_dict(self) -> dict:
-        """Plain-JSON form: scalars, and per output one flat list of floats (C order over
-        (i_x, i_y, k), only the K1 + 2·K2 used columns). Floats round-trip exactly."""
+        """Plain-JSON form: scalars, and per output the coefficients (C order over
+        (i_x, i_y, k), only the K1 + 2·K2 used columns) as base64 of little-endian float64
+        — exact, and 2.3× smaller than decimal lists (the lhcb-like table is ~2 MB)."""
         coefficients = {}
         for u, name in enumerate(OUTPUTS):
             k1, k2 = self.degrees[u]
-            coefficients[name] = self.coef[u, :, :, : k1 + 2 * k2].ravel().tolist()
+            values = np.ascontiguousarray(self.coef[u, :, :, : k1 + 2 * k2], dtype="<f8")
+            coefficients[name] = base64.b64encode(values.tobytes()).decode("ascii")
         return {
             "format": JSON_FORMAT,
             "z_from": float(self.z_from),
@@ -249,7 +253,11 @@ class UTSciFiTable:
         coef = np.zeros((4, nx, ny, ncoef))
         for u, name in enumerate(OUTPUTS):
             k1, k2 = degrees[u]
-            values = np.asarray(data["coefficients"][name], dtype=np.float64)
+            stored = data["coefficients"][name]
+            if isinstance(stored, str):
+                values = np.frombuffer(base64.b64decode(stored, validate=True), dtype="<f8").astype(np.float64)
+            else:
+                values = np.asarray(stored, dtype=np.float64)
             if values.shape != (nx * ny * (k1 + 2 * k2),):
                 raise ValueError(
                     f"UT→SciFi coefficients[{name!r}] has {values.size} values, expected {nx * ny * (k1 + 2 * k2)}"
