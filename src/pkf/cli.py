@@ -56,10 +56,6 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
     click.echo(f"wrote {counts['events']} events, {counts['hits']} hits to {out}")
 
 
-def _not_built(stage: str, issue: int) -> None:
-    raise NotBuiltYet(f"pkf {stage}: not built yet (tracked in issue #{issue}); no output was written")
-
-
 @cli.command()
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Run directory to create.")
@@ -107,10 +103,16 @@ def tune(dataset: Path, out: Path, overwrite: bool) -> None:
     click.echo(f"wrote {out}")
 
 
-@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
-def report() -> None:
-    """Write resolution and pull reports for runs (not built yet)."""
-    _not_built("report", 6)
+@cli.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Report directory to create.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
+def report(runs: tuple[Path, ...], out: Path, overwrite: bool) -> None:
+    """Resolution, pull, χ² and mass report of one or more RUN directories."""
+    from pkf.pipeline.report import run_report
+
+    run_report(list(runs), out, overwrite=overwrite)
+    click.echo(f"wrote {out / 'index.html'} and {out / 'summary.json'}")
 
 
 @cli.command()

@@ -67,14 +67,6 @@ def test_unwritable_or_occupied_out(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1
 
 
-def test_missing_stages_say_so(capsys, tmp_path):
-    for stage in ("report",):
-        code, out, err = _run(capsys, stage, str(tmp_path), "--out", str(tmp_path / "x"))
-        assert code == 1
-        assert "not built yet" in err
-        assert not (tmp_path / "x").exists()
-
-
 def test_console_script_runs(tmp_path):
     env = dict(os.environ)
     result = subprocess.run([sys.executable, "-m", "pkf.cli", "simulate", "--out", str(tmp_path / "d"),

@@ -86,6 +86,7 @@ def production_truth(dataset) -> dict:
     charge = column(p, "charge")
     order = np.argsort(key)
     return {"key": key[order], "qop": (charge / mom)[order], "p": mom[order],
+            "pdg": column(p, "pdg", np.int64)[order],
             "vx": column(p, "vx")[order], "vy": column(p, "vy")[order], "vz": column(p, "vz")[order],
             "tx": np.divide(px, pz, out=np.full_like(px, np.nan), where=pz != 0)[order],
             "ty": np.divide(py, pz, out=np.full_like(py, np.nan), where=pz != 0)[order]}

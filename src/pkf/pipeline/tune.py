@@ -18,6 +18,7 @@ from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
 from pkf.pipeline.inputs import align_mc, column, load_dataset, particle_key, production_truth
 
 UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
+PDG_PION = 211
 
 
 def ut_to_scifi_table(geometry: Geometry, field_map) -> UTSciFiTable | None:
@@ -48,13 +49,20 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
     layer = column(dataset.hits, "layer", np.int64)
     production = production_truth(dataset)
     keys = particle_key(event, particle)
-    signal = particle > 0
+    signal = np.flatnonzero(particle > 0)
     pos = np.minimum(np.searchsorted(production["key"], keys[signal]), production["key"].size - 1)
     if not np.all(production["key"][pos] == keys[signal]):
         raise InputError(f"{dataset_path}: mc_hits refer to particles missing from the particles table")
+    # The fit assumes the pion hypothesis (as the reference fitter's material effects do):
+    # tune on pions, so that slow kaons and protons (1/β) and radiating electrons do not
+    # inflate the noise of every track.
+    pions = np.abs(production["pdg"][pos]) == PDG_PION
+    signal, pos = signal[pions], pos[pions]
+    if signal.size == 0:
+        raise InputError(f"{dataset_path}: no pion hits to tune on")
     pairs = build_pairs(event[signal], particle[signal], layer[signal], truth[signal], production["qop"][pos],
                         geometry.layer_z, field_map)
-    echo(f"tune: {pairs.x1.shape[0]} state pairs from {np.unique(event).size} events")
+    echo(f"tune: {pairs.x1.shape[0]} state pairs of pions from {np.unique(event).size} events")
     table = ut_to_scifi_table(geometry, field_map)
     if table is not None:
         echo(f"tune: UT→SciFi table tabulated with RK4 ({time.perf_counter() - started:.0f} s so far)")

@@ -1,0 +1,68 @@
+"""The `pkf report` stage: run directories → REPORT/ with summary.json, index.html and PNG plots (DESIGN §11).
+
+Inputs are validated and every number is computed before anything is written;
+the report directory is then built in a hidden staging directory and renamed into
+place (:func:`pkf.io.atomic.staged_output_dir`), so bad input or a crash leaves no
+partial report. The summary.json keys are documented in :mod:`pkf.report.metrics`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pkf.errors import InputError
+from pkf.io.atomic import atomic_write_json, check_output_dir, staged_output_dir
+from pkf.report.html import render_html
+from pkf.report.metrics import compute_report
+from pkf.report.runs import load_runs
+
+__all__ = ["run_report", "REPORT_FILES"]
+
+#: Files every report holds (plus the PNG plots that have data).
+REPORT_FILES = ("index.html", "summary.json")
+
+
+def _inside(path: Path, directory: Path) -> bool:
+    return path == directory or directory in path.parents
+
+
+def run_report(run_dirs: list[Path], out: Path, overwrite: bool = False) -> dict:
+    """Write the report of the runs ``run_dirs`` into the directory ``out``; return the summary.
+
+    Args:
+        run_dirs: run directories of `pkf reconstruct` (several fitters in one run,
+            or one run per fitter; each fitter in only one run).
+        out: report directory to create (``index.html``, ``summary.json``, PNG plots).
+        overwrite: replace an existing non-empty ``out``.
+
+    Returns:
+        the summary (the contents of summary.json, before NaN → null).
+
+    Raises:
+        InputError: bad or incomplete run directory, the same fitter twice, a
+            malformed dataset, or an ``out`` that cannot be written (one line;
+            nothing is written).
+    """
+    run_dirs = [Path(p) for p in run_dirs]
+    final = check_output_dir(out, overwrite)
+    for run in run_dirs:
+        resolved = Path(os.path.abspath(run))
+        if _inside(final, resolved) or _inside(resolved, final):
+            raise InputError(f"--out {out}: overlaps the run directory {run}")
+    runs = load_runs(run_dirs)
+    for run in runs:
+        dataset = run.dataset_path
+        if dataset is not None:
+            resolved = Path(os.path.abspath(dataset))
+            if _inside(final, resolved) or _inside(resolved, final):
+                raise InputError(f"--out {out}: overlaps the dataset {dataset} of run {run.path}")
+    data = compute_report(runs)
+
+    from pkf.report.plots import make_plots  # matplotlib is imported only when a report is made
+
+    with staged_output_dir(out, overwrite) as staging:
+        plots = make_plots(data, staging)
+        (staging / "index.html").write_text(render_html(data.summary, plots), encoding="utf-8")
+        atomic_write_json(data.summary, staging / "summary.json")
+    return data.summary

@@ -1,0 +1,715 @@
+"""Report metrics (DESIGN §10–§11, paper Figs. 1–4): resolutions, pulls, χ²/ndf, B_s mass, efficiency, timing.
+
+:func:`compute_report` takes validated runs (:func:`pkf.report.runs.load_runs`) and
+returns a :class:`ReportData`: the machine-readable ``summary`` (written as
+``summary.json``) and the per-fitter arrays the plots need.
+
+Conventions
+-----------
+- Resolutions and pulls are taken at the **first hit** (the paper's "most upstream
+  measurement"), for the tracks in the run's ``pulls`` table (fit status ``ok`` and
+  matched to an MC particle); each fitter uses its own tracks.
+- ``rms`` is the root mean square of the values about zero, ``sqrt(mean(v²))``
+  (paper Fig. 1: "root mean square of the residual distribution"); ``core_*`` /
+  ``mean``, ``width`` come from :func:`pkf.report.gauss.gaussian_core` (iterative
+  ±3σ truncated-Gaussian unbinned fits, 3 passes). Bins with fewer than 10 values
+  have no core fit (``null``).
+- δp/p = (p_fit − p_true)/p_true with p_fit = 1/|qop| of the fitted first-hit state
+  (``states``) and p_true from ``pulls`` (the truth the pull was computed against).
+- χ²/ndf uses tracks with fit status ``ok``; "real" = matched to an MC particle,
+  "ghost" = ``is_ghost``. Cutting at c keeps χ²/ndf < c: real efficiency = kept real
+  / real, ghost rejection = removed ghosts / ghosts.
+- B_s⁰ → φφ: kaons with ``from_signal``, |pdg| = 321, parent φ (333), grand-parent
+  B_s (531) in the dataset's ``particles``; each kaon takes the fitted **beamline**
+  state of its matched track (fit ``ok``, not a ghost; among clones the highest
+  match fraction, then the lowest track_id); decays with all four kaons found give a
+  candidate; mass from four-momenta with the kaon mass (:mod:`pkf.report.massfit`),
+  Gaussian + linear background, extended unbinned ML in the window.
+- Efficiency: reconstructible long particles of the dataset (DESIGN §10, via
+  :func:`pkf.pipeline.matching.reconstructible_particles`); a particle is found by
+  a fitter if a track of that fitter with fit status ``ok`` is matched to it; at
+  run level (``runs[i].pattern.recomputed``) if any candidate is matched to it
+  (the definition of run.json ``pattern``). p and η are the production momentum's.
+  Errors are Clopper–Pearson 68.3% intervals.
+- Speed-up = tracks_per_s(fitter) / tracks_per_s(reference), from run.json
+  ``timing.fit``; DESIGN §12 asks for ratios from one process run on the same
+  tracks, so ``same_run_as_reference`` says whether that holds.
+
+Every float is written as a number, or ``null`` where undefined (NaN/inf).
+
+summary.json keys
+-----------------
+Top level:
+
+- ``kind``: ``"report"``; ``pkf_version``; ``reference_fitter``: ``"reference"`` or null.
+- ``fitter_order``: fitter names in run order.
+- ``settings``: ``resolution_location``, ``pull_location``, ``mass_location``,
+  ``p_edges_mev`` (resolution and efficiency bins of p [MeV]), ``eta_edges``,
+  ``chi2_ndf_cuts``, ``mass_window_mev`` [lo, hi], ``mass_fit`` (method, text).
+- ``runs``: list, one per run directory given, each with ``path``, ``dataset``,
+  ``dataset_status`` (``"ok"`` or why dataset-based metrics are missing),
+  ``geometry``, ``pattern_recognition`` (run.json config.pattern), ``fitters``,
+  ``events``, ``has_mc``, ``timing`` (run.json timing per stage, without ``fit``),
+  ``pattern`` = {``run_json``: run.json ``pattern`` or null, ``recomputed``:
+  {``tracks``, ``reconstructible``, ``found``, ``efficiency``, ``ghost_rate``,
+  ``clone_rate``} or null}.
+- ``fitters``: per fitter name:
+
+  - ``run``: index into ``runs``.
+  - ``tracks``: ``total``, ``ok``, ``failed``, ``matched`` (ok and matched), ``ghost`` (ok and ghost).
+  - ``resolution``: ``available``, ``note``, ``location``, ``p_edges_mev``,
+    ``variables`` → for each of ``dp_over_p`` (dimensionless), ``x``, ``y`` [mm],
+    ``tx``, ``ty`` [rad]: ``unit``, ``all`` = {``n``, ``rms``, ``core_mean``,
+    ``core_sigma``, ``core_sigma_error``, ``core_valid``} over all p, and ``bins`` =
+    the same keys as lists, one value per p bin; ``ratio_to_reference`` → per
+    variable {``rms``, ``core_sigma``} lists (this fitter / reference, per p bin),
+    null for the reference itself or without a reference.
+  - ``pulls``: ``available``, ``note``, ``location``, ``parameters`` → for each of
+    ``x``, ``y``, ``tx``, ``ty``, ``qop``: ``mean``, ``mean_error``, ``width``,
+    ``width_error`` (Gaussian core), ``rms``, ``n`` (finite pulls), ``n_core``
+    (within the final ±3σ window), ``valid`` (fit converged).
+  - ``chi2``: ``available``, ``note``, ``has_mc``, ``has_ghosts``, ``real``,
+    ``ghost``, ``all`` = {``n``, ``mean``, ``median``, ``q90``, ``q99``} (``real`` and
+    ``ghost`` null without MC, ``ghost`` null without ghosts), ``cut_scan`` =
+    {``cuts``, ``real_efficiency``, ``ghost_rejection`` (null without ghosts); without
+    MC instead ``all_efficiency`` (fraction of all tracks kept)}.
+  - ``mass``: ``available``, ``note``, ``location``, ``n_signal_decays`` (B_s in the
+    dataset), ``n_candidates`` (decays with all four kaons fitted), ``fit`` =
+    {``mean``, ``mean_error``, ``sigma``, ``sigma_error``, ``n_signal``,
+    ``n_signal_error``, ``n_background``, ``n_background_error``, ``slope``,
+    ``n_candidates`` (in the window), ``window``, ``valid``, ``status``} [MeV].
+  - ``efficiency``: ``available``, ``note``, ``reconstructible``, ``found``,
+    ``efficiency``, ``ghost_rate``, ``clone_rate`` (among this fitter's ok tracks),
+    ``p_edges_mev``, ``vs_p`` and ``eta_edges``, ``vs_eta`` = {``reconstructible``,
+    ``found``, ``efficiency``, ``error_low``, ``error_high``} lists per bin.
+  - ``timing``: ``available``, ``note``, ``wall_s``, ``cpu_s``, ``tracks``,
+    ``tracks_per_s``, ``ns_per_node``, ``speed_up_vs_reference``,
+    ``ns_per_node_ratio`` (reference ns/node ÷ this fitter's), ``same_run_as_reference``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from scipy.stats import beta
+
+import pkf
+from pkf.errors import InputError
+from pkf.report.gauss import gaussian_core
+from pkf.report.massfit import BS_MASS, KAON_MASS, MassFit, fit_mass_peak, four_momenta, invariant_mass
+from pkf.report.runs import REFERENCE_FITTER, RunInput, column, rows_of
+
+__all__ = [
+    "P_EDGES_MEV",
+    "ETA_EDGES",
+    "CHI2_NDF_CUTS",
+    "MASS_WINDOW_MEV",
+    "RESOLUTION_VARIABLES",
+    "PULL_PARAMETERS",
+    "FitterArrays",
+    "ReportData",
+    "compute_report",
+    "resolution_summary",
+    "pull_summary",
+    "chi2_summary",
+    "efficiency_in_bins",
+    "delta_p_over_p",
+]
+
+#: Bins of true momentum [MeV] for resolutions and efficiencies (paper Fig. 1 spans 0–100 GeV).
+P_EDGES_MEV = np.array([1, 2, 3, 5, 7, 10, 15, 20, 30, 50, 100], dtype=float) * 1e3
+#: Bins of pseudorapidity for efficiencies (the LHCb acceptance, 2 < η < 5).
+ETA_EDGES = np.array([2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0])
+#: Upper cuts on χ²/ndf for the efficiency / rejection scan (paper Fig. 3).
+CHI2_NDF_CUTS = np.round(np.arange(0.5, 10.0001, 0.5), 6)
+#: B_s mass fit window [MeV].
+MASS_WINDOW_MEV = (BS_MASS - 250.0, BS_MASS + 250.0)
+
+RESOLUTION_LOCATION = "first_hit"
+PULL_LOCATION = "first_hit"
+MASS_LOCATION = "beamline"
+#: Resolution variables and their units.
+RESOLUTION_VARIABLES = {"dp_over_p": "", "x": "mm", "y": "mm", "tx": "rad", "ty": "rad"}
+PULL_PARAMETERS = ("x", "y", "tx", "ty", "qop")
+_KEY = 1 << 32
+
+
+@dataclass
+class FitterArrays:
+    """Per-fitter values the plots need (numpy arrays; empty when not available)."""
+
+    p_true: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residuals: dict[str, np.ndarray] = field(default_factory=dict)
+    pulls: dict[str, np.ndarray] = field(default_factory=dict)
+    chi2_ndf_real: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    chi2_ndf_ghost: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    chi2_ndf_all: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    masses: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mass_fit: MassFit | None = None
+
+
+@dataclass
+class ReportData:
+    """The report: ``summary`` (summary.json) and per-fitter arrays for the plots."""
+
+    summary: dict
+    arrays: dict[str, FitterArrays]
+
+    @property
+    def fitter_order(self) -> list[str]:
+        return list(self.summary["fitters"])
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _f(value) -> float | None:
+    """A float for JSON, None when undefined."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _rms(values: np.ndarray) -> float:
+    v = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+
+def _core_stats(values: np.ndarray) -> dict:
+    core = gaussian_core(values)
+    return {
+        "n": int(np.isfinite(values).sum()),
+        "rms": _f(_rms(values)),
+        "core_mean": _f(core.mean),
+        "core_sigma": _f(core.sigma),
+        "core_sigma_error": _f(core.sigma_error),
+        "core_valid": bool(core.valid),
+    }
+
+
+def _track_key(table: pa.Table) -> np.ndarray:
+    return column(table, "event_id", np.int64) * _KEY + column(table, "track_id", np.int64)
+
+
+def _lookup(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of each key in the sorted key array, and whether it was found."""
+    if sorted_keys.size == 0:
+        return np.zeros(keys.size, dtype=np.int64), np.zeros(keys.size, dtype=bool)
+    pos = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
+    return pos, sorted_keys[pos] == keys
+
+
+def _section(available: bool, note: str | None = None, **values) -> dict:
+    return {"available": available, "note": note, **values}
+
+
+# ----------------------------------------------------------------------------- resolution and pulls
+
+
+def delta_p_over_p(pulls: pa.Table, states: pa.Table) -> np.ndarray:
+    """δp/p = 1/(p_true·|qop_fit|) − 1 for each row of ``pulls``; qop_fit from the ``states``
+    row of the same (event, track, fitter, location). NaN where no state row exists."""
+    out = np.full(pulls.num_rows, np.nan)
+    if pulls.num_rows == 0:
+        return out
+    fitters = sorted(set(pulls.column("fitter").to_pylist()))
+    locations = sorted(set(pulls.column("location").to_pylist()))
+    for fitter in fitters:
+        for location in locations:
+            mask = (
+                pc.and_(pc.equal(pulls.column("fitter"), fitter), pc.equal(pulls.column("location"), location))
+                .to_numpy(zero_copy_only=False)
+            )
+            if not mask.any():
+                continue
+            st = rows_of(states, fitter, location)
+            skey = _track_key(st)
+            order = np.argsort(skey, kind="stable")
+            pos, found = _lookup(skey[order], _track_key(pulls.filter(pa.array(mask))))
+            qop = column(st, "qop")[order][pos]
+            p_true = column(pulls, "p_true")[mask]
+            out[np.flatnonzero(mask)] = np.where(found, 1.0 / (p_true * np.abs(qop)) - 1.0, np.nan)
+    return out
+
+
+def resolution_summary(p_true: np.ndarray, values: np.ndarray, p_edges: np.ndarray = P_EDGES_MEV) -> dict:
+    """RMS and Gaussian core of ``values`` over all tracks and in bins of ``p_true`` [MeV].
+
+    Returns ``{"all": {...}, "bins": {key: [per bin]}}`` with keys ``n``, ``rms``,
+    ``core_mean``, ``core_sigma``, ``core_sigma_error``, ``core_valid``. Bins are
+    [lo, hi) in p_true.
+    """
+    p_true = np.asarray(p_true, dtype=float)
+    values = np.asarray(values, dtype=float)
+    bins: dict[str, list] = {k: [] for k in ("n", "rms", "core_mean", "core_sigma", "core_sigma_error", "core_valid")}
+    for lo, hi in zip(p_edges[:-1], p_edges[1:]):
+        stats = _core_stats(values[(p_true >= lo) & (p_true < hi)])
+        for k in bins:
+            bins[k].append(stats[k])
+    return {"all": _core_stats(values), "bins": bins}
+
+
+def pull_summary(values: np.ndarray) -> dict:
+    """Gaussian core (mean, width and their errors), RMS and counts of a pull distribution."""
+    values = np.asarray(values, dtype=float)
+    core = gaussian_core(values)
+    return {
+        "mean": _f(core.mean),
+        "mean_error": _f(core.mean_error),
+        "width": _f(core.sigma),
+        "width_error": _f(core.sigma_error),
+        "rms": _f(_rms(values)),
+        "n": int(np.isfinite(values).sum()),
+        "n_core": int(core.n),
+        "valid": bool(core.valid),
+    }
+
+
+def _ratio(a: list, b: list) -> list:
+    out = []
+    for x, y in zip(a, b):
+        out.append(_f(x / y) if x is not None and y not in (None, 0.0) else None)
+    return out
+
+
+# ----------------------------------------------------------------------------- χ²/ndf
+
+
+def _distribution(values: np.ndarray) -> dict | None:
+    if values.size == 0:
+        return {"n": 0, "mean": None, "median": None, "q90": None, "q99": None}
+    q = np.quantile(values, [0.5, 0.9, 0.99])
+    return {"n": int(values.size), "mean": _f(values.mean()), "median": _f(q[0]), "q90": _f(q[1]), "q99": _f(q[2])}
+
+
+def chi2_summary(chi2_ndf: np.ndarray, is_ghost: np.ndarray, has_mc: bool, cuts=CHI2_NDF_CUTS) -> dict:
+    """χ²/ndf distributions of real and ghost tracks and the efficiency / rejection scan.
+
+    ``chi2_ndf`` and ``is_ghost`` are per track with fit status ok (non-finite values dropped).
+    """
+    chi2_ndf = np.asarray(chi2_ndf, dtype=float)
+    is_ghost = np.asarray(is_ghost, dtype=bool)
+    finite = np.isfinite(chi2_ndf)
+    chi2_ndf, is_ghost = chi2_ndf[finite], is_ghost[finite]
+    cuts = np.asarray(cuts, dtype=float)
+    out = _section(True, None, has_mc=has_mc, has_ghosts=False, all=_distribution(chi2_ndf), real=None, ghost=None)
+    scan = {"cuts": cuts.tolist(), "real_efficiency": None, "ghost_rejection": None}
+    if not has_mc:
+        out["note"] = "no MC truth in this run: real and ghost tracks cannot be told apart"
+        scan["all_efficiency"] = [_f(np.mean(chi2_ndf < c)) if chi2_ndf.size else None for c in cuts]
+        out["cut_scan"] = scan
+        return out
+    real, ghost = chi2_ndf[~is_ghost], chi2_ndf[is_ghost]
+    out["real"] = _distribution(real)
+    scan["real_efficiency"] = [_f(np.mean(real < c)) if real.size else None for c in cuts]
+    if ghost.size:
+        out["has_ghosts"] = True
+        out["ghost"] = _distribution(ghost)
+        scan["ghost_rejection"] = [_f(np.mean(ghost >= c)) for c in cuts]
+    else:
+        out["note"] = "no ghost tracks in this run (e.g. truth pattern recognition): ghost rejection is undefined"
+    out["cut_scan"] = scan
+    return out
+
+
+# ----------------------------------------------------------------------------- efficiency
+
+
+def _clopper_pearson(k: np.ndarray, n: np.ndarray, cl: float = 0.6827) -> tuple[np.ndarray, np.ndarray]:
+    alpha = 1.0 - cl
+    k, n = np.asarray(k, dtype=float), np.asarray(n, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo = np.where(k > 0, beta.ppf(alpha / 2, k, n - k + 1), 0.0)
+        hi = np.where(k < n, beta.ppf(1 - alpha / 2, k + 1, n - k), 1.0)
+    return lo, hi
+
+
+def efficiency_in_bins(values: np.ndarray, found: np.ndarray, edges: np.ndarray) -> dict:
+    """Efficiency of ``found`` among particles binned in ``values`` ([lo, hi) bins),
+    with Clopper–Pearson 68.3% errors (``error_low``/``error_high`` are distances)."""
+    values = np.asarray(values, dtype=float)
+    found = np.asarray(found, dtype=bool)
+    idx = np.digitize(values, edges) - 1
+    inside = (idx >= 0) & (idx < edges.size - 1)
+    n = np.bincount(idx[inside], minlength=edges.size - 1)
+    k = np.bincount(idx[inside], weights=found[inside], minlength=edges.size - 1).astype(np.int64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        eff = np.where(n > 0, k / np.maximum(n, 1), np.nan)
+    lo, hi = _clopper_pearson(k, n)
+    return {
+        "reconstructible": n.tolist(),
+        "found": k.tolist(),
+        "efficiency": [_f(e) for e in eff],
+        "error_low": [_f(e - a) if n_ > 0 else None for e, a, n_ in zip(eff, lo, n)],
+        "error_high": [_f(b - e) if n_ > 0 else None for e, b, n_ in zip(eff, hi, n)],
+    }
+
+
+@dataclass
+class _DatasetTruth:
+    """MC truth of one dataset that the report needs."""
+
+    status: str  # "ok" or why not available
+    n_events: int = 0
+    reco_key: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted particle keys
+    reco_p: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    reco_eta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    kaon_keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))  # per B_s decay
+    n_bs: int = 0
+
+
+def _load_truth(run: RunInput) -> _DatasetTruth:
+    """Read the run's dataset (particles, mc_hits, hits, geometry) for efficiency and the B_s mass.
+
+    A missing dataset, one without MC truth or one that changed since the run gives a
+    status saying so (the sections are then marked unavailable); a present but
+    malformed dataset raises InputError.
+    """
+    from pkf.pipeline.inputs import align_mc, content_hash, load_dataset, particle_key
+    from pkf.pipeline.matching import reconstructible_particles
+
+    path = run.dataset_path
+    if path is None:
+        return _DatasetTruth("run.json names no dataset (input.path)")
+    if not path.is_dir():
+        return _DatasetTruth(f"dataset {path} not found (moved or deleted since the run)")
+    if not (path / "meta.json").is_file():
+        return _DatasetTruth(f"{path} is not a dataset (no meta.json)")
+    geometry, dataset = load_dataset(path)
+    if not dataset.has_mc:
+        return _DatasetTruth(f"dataset {path} has no MC truth (particles, mc_hits)")
+    recorded = (run.info.get("input") or {}).get("content_hash")
+    if recorded and recorded != content_hash(dataset):
+        return _DatasetTruth(f"dataset {path} changed since the run (content hash differs from run.json)")
+
+    hits = dataset.hits
+    event_id = column(hits, "event_id", np.int64)
+    particle, _ = align_mc(dataset, event_id)
+    key = particle_key(event_id, particle)
+    reco = np.sort(reconstructible_particles(geometry, key, column(hits, "layer", np.int64)))
+
+    parts = dataset.particles
+    p_event = column(parts, "event_id", np.int64)
+    p_id = column(parts, "particle_id", np.int64)
+    p_key = particle_key(p_event, p_id)
+    order = np.argsort(p_key)
+    p_key_sorted = p_key[order]
+    px, py, pz = (column(parts, c)[order] for c in ("px", "py", "pz"))
+    pos, _ = _lookup(p_key_sorted, reco)
+    pt = np.hypot(px, py)
+    p = np.sqrt(pt**2 + pz**2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta = -np.log(np.tan(0.5 * np.arctan2(pt, pz)))
+
+    # B_s → φφ, φ → K⁺K⁻: group signal kaons by their grand-parent
+    pdg = column(parts, "pdg", np.int64)[order]
+    parent = column(parts, "parent_id", np.int64)[order]
+    signal = column(parts, "from_signal", bool)[order]
+    ev_sorted = p_event[order]
+    parent_key = particle_key(ev_sorted, parent)
+    ppos, pfound = _lookup(p_key_sorted, parent_key)
+    parent_pdg = np.where(pfound, pdg[ppos], 0)
+    grand_key = np.where(pfound, particle_key(ev_sorted, parent[ppos]), 0)
+    gpos, gfound = _lookup(p_key_sorted, grand_key)
+    grand_pdg = np.where(pfound & gfound, pdg[gpos], 0)
+    is_kaon = signal & (np.abs(pdg) == 321) & (parent_pdg == 333) & (np.abs(grand_pdg) == 531)
+    bs = signal & (np.abs(pdg) == 531)
+    kaons_of = {}
+    for k_key, g_key in zip(p_key_sorted[is_kaon], grand_key[is_kaon]):
+        kaons_of.setdefault(int(g_key), []).append(int(k_key))
+    quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
+    kaon_keys = np.array(quads, dtype=np.int64).reshape(-1, 4)
+    return _DatasetTruth("ok", int(np.unique(event_id).size), reco, p[pos], eta[pos], kaon_keys, int(bs.sum()))
+
+
+def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
+    from pkf.pipeline.inputs import particle_key
+
+    mc = column(chi2, "mc_particle_id", np.int64)
+    sel = mc > 0
+    if ok_only:
+        sel &= (pc.equal(chi2.column("status"), "ok")).to_numpy(zero_copy_only=False)
+    return np.unique(particle_key(column(chi2, "event_id", np.int64)[sel], mc[sel]))
+
+
+def _rates(chi2: pa.Table) -> tuple[float | None, float | None]:
+    """Ghost rate and clone rate of the tracks of a chi2 table (DESIGN §10)."""
+    from pkf.pipeline.inputs import particle_key
+
+    n = chi2.num_rows
+    if n == 0:
+        return None, None
+    ghost = column(chi2, "is_ghost", bool)
+    mc = column(chi2, "mc_particle_id", np.int64)
+    real = particle_key(column(chi2, "event_id", np.int64)[~ghost], mc[~ghost])
+    clone = (real.size - np.unique(real).size) / real.size if real.size else None
+    return _f(ghost.mean()), _f(clone)
+
+
+def _efficiency_section(truth: _DatasetTruth, chi2_ok: pa.Table, has_mc: bool) -> dict:
+    if not has_mc:
+        return _section(False, "no MC truth in this run")
+    if truth.status != "ok":
+        return _section(False, truth.status)
+    found = np.isin(truth.reco_key, _found_particles(chi2_ok, ok_only=True))
+    ghost_rate, clone_rate = _rates(chi2_ok)
+    n = int(truth.reco_key.size)
+    return _section(
+        True,
+        None if n else "no reconstructible particle in the dataset",
+        reconstructible=n,
+        found=int(found.sum()),
+        efficiency=_f(found.mean()) if n else None,
+        ghost_rate=ghost_rate,
+        clone_rate=clone_rate,
+        p_edges_mev=P_EDGES_MEV.tolist(),
+        vs_p=efficiency_in_bins(truth.reco_p, found, P_EDGES_MEV),
+        eta_edges=ETA_EDGES.tolist(),
+        vs_eta=efficiency_in_bins(truth.reco_eta, found, ETA_EDGES),
+    )
+
+
+# ----------------------------------------------------------------------------- B_s mass
+
+
+def _bs_masses(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> np.ndarray:
+    """Four-kaon masses [MeV] of the signal decays whose four kaons have a fitted track."""
+    from pkf.pipeline.inputs import particle_key
+
+    if truth.kaon_keys.shape[0] == 0:
+        return np.zeros(0)
+    ghost = column(chi2_ok, "is_ghost", bool)
+    mc = column(chi2_ok, "mc_particle_id", np.int64)
+    sel = ~ghost & (mc > 0)
+    ev = column(chi2_ok, "event_id", np.int64)[sel]
+    pkey = particle_key(ev, mc[sel])
+    tkey = ev * _KEY + column(chi2_ok, "track_id", np.int64)[sel]
+    frac = column(chi2_ok, "match_fraction")[sel]
+    # best track per particle: highest match fraction, then lowest track key
+    order = np.lexsort((tkey, -frac, pkey))
+    pkey, tkey = pkey[order], tkey[order]
+    first = np.r_[True, pkey[1:] != pkey[:-1]] if pkey.size else np.zeros(0, dtype=bool)
+    pkey, tkey = pkey[first], tkey[first]
+
+    kaons = truth.kaon_keys.reshape(-1)
+    kpos, kfound = _lookup(pkey, kaons)
+    track = tkey[kpos]
+    skey = _track_key(states)
+    sorder = np.argsort(skey, kind="stable")
+    spos, sfound = _lookup(skey[sorder], track)
+    have = (kfound & sfound).reshape(-1, 4).all(axis=1)
+    if not have.any():
+        return np.zeros(0)
+    rows = sorder[spos].reshape(-1, 4)[have].reshape(-1)
+    mom = four_momenta(column(states, "qop")[rows], column(states, "tx")[rows], column(states, "ty")[rows],
+                       KAON_MASS)
+    return invariant_mass(mom.reshape(-1, 4, 4))
+
+
+# ----------------------------------------------------------------------------- timing
+
+
+def _timing_section(run: RunInput, name: str) -> dict:
+    fit = ((run.info.get("timing") or {}).get("fit") or {}).get(name)
+    if not isinstance(fit, dict):
+        return _section(False, f"run.json of {run.path} has no timing.fit.{name}")
+    keys = ("wall_s", "cpu_s", "tracks", "tracks_per_s", "ns_per_node")
+    values = {}
+    for k in keys:
+        v = fit.get(k)
+        values[k] = _f(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+    if values["tracks"] is not None:
+        values["tracks"] = int(values["tracks"])
+    return _section(True, None, **values, speed_up_vs_reference=None, ns_per_node_ratio=None,
+                    same_run_as_reference=None)
+
+
+# ----------------------------------------------------------------------------- main entry
+
+
+def _fitter_report(run: RunInput, run_index: int, name: str, truth: _DatasetTruth) -> tuple[dict, FitterArrays]:
+    arrays = FitterArrays()
+    chi2 = rows_of(run.chi2, name)
+    ok_mask = pc.equal(chi2.column("status"), "ok")
+    chi2_ok = chi2.filter(ok_mask)
+    ghost_ok = column(chi2_ok, "is_ghost", bool)
+    tracks = {
+        "total": chi2.num_rows,
+        "ok": chi2_ok.num_rows,
+        "failed": chi2.num_rows - chi2_ok.num_rows,
+        "matched": int((~ghost_ok).sum()) if run.has_mc else None,
+        "ghost": int(ghost_ok.sum()) if run.has_mc else None,
+    }
+
+    # resolution and pulls at the first hit (Figs. 1, 2)
+    if run.pulls is None:
+        note = f"no MC truth in run {run.path} (no pulls table)"
+        resolution = _section(False, note, location=RESOLUTION_LOCATION)
+        pulls = _section(False, note, location=PULL_LOCATION)
+    else:
+        first = rows_of(run.pulls, name, RESOLUTION_LOCATION)
+        arrays.p_true = column(first, "p_true")
+        arrays.residuals = {"dp_over_p": delta_p_over_p(first, run.states)}
+        for var in ("x", "y", "tx", "ty"):
+            arrays.residuals[var] = column(first, f"res_{var}")
+        arrays.pulls = {par: column(first, f"pull_{par}") for par in PULL_PARAMETERS}
+        empty = first.num_rows == 0
+        note = "no matched track with a fitted first-hit state" if empty else None
+        resolution = _section(
+            not empty, note, location=RESOLUTION_LOCATION, p_edges_mev=P_EDGES_MEV.tolist(),
+            variables={var: {"unit": unit, **resolution_summary(arrays.p_true, arrays.residuals[var])}
+                       for var, unit in RESOLUTION_VARIABLES.items()},
+            ratio_to_reference=None,
+        )
+        pulls = _section(not empty, note, location=PULL_LOCATION,
+                         parameters={par: pull_summary(arrays.pulls[par]) for par in PULL_PARAMETERS})
+
+    # χ²/ndf (Fig. 3)
+    chi2_ndf = column(chi2_ok, "chi2_ndf")
+    chi2_section = chi2_summary(chi2_ndf, ghost_ok, run.has_mc)
+    arrays.chi2_ndf_all = chi2_ndf[np.isfinite(chi2_ndf)]
+    if run.has_mc:
+        arrays.chi2_ndf_real = chi2_ndf[~ghost_ok & np.isfinite(chi2_ndf)]
+        arrays.chi2_ndf_ghost = chi2_ndf[ghost_ok & np.isfinite(chi2_ndf)]
+
+    # B_s mass (Fig. 4)
+    if not run.has_mc:
+        mass = _section(False, "no MC truth in this run", location=MASS_LOCATION)
+    elif truth.status != "ok":
+        mass = _section(False, truth.status, location=MASS_LOCATION)
+    elif truth.n_bs == 0:
+        mass = _section(False, "the dataset has no B_s⁰ → φφ signal decay (generator bs2phiphi or pythia)",
+                        location=MASS_LOCATION, n_signal_decays=0)
+    else:
+        states = rows_of(run.states, name, MASS_LOCATION)
+        arrays.masses = _bs_masses(truth, chi2_ok, states)
+        arrays.mass_fit = fit_mass_peak(arrays.masses, MASS_WINDOW_MEV)
+        mass = _section(
+            arrays.mass_fit.status == "ok", None if arrays.mass_fit.status == "ok" else arrays.mass_fit.status,
+            location=MASS_LOCATION, n_signal_decays=truth.n_bs, n_candidates=int(arrays.masses.size),
+            fit={k: _f(v) if isinstance(v, float) else v for k, v in arrays.mass_fit.as_dict().items()},
+        )
+
+    report = {
+        "run": run_index,
+        "tracks": tracks,
+        "resolution": resolution,
+        "pulls": pulls,
+        "chi2": chi2_section,
+        "mass": mass,
+        "efficiency": _efficiency_section(truth, chi2_ok, run.has_mc),
+        "timing": _timing_section(run, name),
+    }
+    return report, arrays
+
+
+def _run_summary(run: RunInput, truth: _DatasetTruth | None) -> dict:
+    config = run.info.get("config") or {}
+    counts = run.info.get("counts") or {}
+    timing = {k: v for k, v in (run.info.get("timing") or {}).items() if k != "fit"}
+    recomputed = None
+    if run.has_mc and truth is not None and truth.status == "ok":
+        # candidate level: every fitter's chi2 rows list all candidates; take the first fitter's
+        first = rows_of(run.chi2, run.fitters[0])
+        found = np.isin(truth.reco_key, _found_particles(first, ok_only=False))
+        ghost_rate, clone_rate = _rates(first)
+        recomputed = {
+            "tracks": first.num_rows,
+            "reconstructible": int(truth.reco_key.size),
+            "found": int(found.sum()),
+            "efficiency": _f(found.mean()) if found.size else None,
+            "ghost_rate": ghost_rate,
+            "clone_rate": clone_rate,
+        }
+    return {
+        "path": str(run.path),
+        "dataset": str(run.dataset_path) if run.dataset_path else None,
+        "dataset_status": truth.status if truth is not None else "no MC truth in this run",
+        "geometry": (run.info.get("input") or {}).get("geometry"),
+        "pattern_recognition": config.get("pattern"),
+        "fitters": list(run.fitters),
+        "events": counts.get("events"),
+        "has_mc": run.has_mc,
+        "timing": timing,
+        "pattern": {"run_json": run.info.get("pattern"), "recomputed": recomputed},
+    }
+
+
+def compute_report(runs: list[RunInput]) -> ReportData:
+    """All report numbers for the fitters of ``runs`` (validated, fitters distinct).
+
+    Raises:
+        InputError: a run's dataset is present but malformed.
+    """
+    names = [name for run in runs for name in run.fitters]
+    if len(set(names)) != len(names):  # load_runs already refuses this
+        raise InputError("report: the same fitter appears in two runs")
+    reference = REFERENCE_FITTER if REFERENCE_FITTER in names else None
+    truths: dict[Path, _DatasetTruth] = {}
+    fitters: dict[str, dict] = {}
+    arrays: dict[str, FitterArrays] = {}
+    run_summaries = []
+    for index, run in enumerate(runs):
+        truth = None
+        if run.has_mc:
+            key = run.dataset_path.resolve() if run.dataset_path else Path(f"<none {index}>")
+            if key not in truths:
+                truths[key] = _load_truth(run)
+            truth = truths[key]
+        run_summaries.append(_run_summary(run, truth))
+        for name in run.fitters:
+            fitters[name], arrays[name] = _fitter_report(run, index, name, truth or _DatasetTruth("no MC truth"))
+
+    if reference is not None:
+        ref = fitters[reference]
+        ref_run = ref["run"]
+        ref_timing = ref["timing"]
+        for name, rep in fitters.items():
+            if name == reference:
+                continue
+            if rep["resolution"]["available"] and ref["resolution"]["available"]:
+                rep["resolution"]["ratio_to_reference"] = {
+                    var: {
+                        key: _ratio(rep["resolution"]["variables"][var]["bins"][key],
+                                    ref["resolution"]["variables"][var]["bins"][key])
+                        for key in ("rms", "core_sigma")
+                    }
+                    for var in RESOLUTION_VARIABLES
+                }
+            timing = rep["timing"]
+            if timing["available"] and ref_timing["available"]:
+                if timing["tracks_per_s"] and ref_timing["tracks_per_s"]:
+                    timing["speed_up_vs_reference"] = _f(timing["tracks_per_s"] / ref_timing["tracks_per_s"])
+                if timing["ns_per_node"] and ref_timing["ns_per_node"]:
+                    timing["ns_per_node_ratio"] = _f(ref_timing["ns_per_node"] / timing["ns_per_node"])
+                timing["same_run_as_reference"] = rep["run"] == ref_run
+        if ref_timing["available"]:
+            ref_timing["speed_up_vs_reference"] = 1.0 if ref_timing["tracks_per_s"] else None
+            ref_timing["ns_per_node_ratio"] = 1.0 if ref_timing["ns_per_node"] else None
+            ref_timing["same_run_as_reference"] = True
+
+    summary = {
+        "kind": "report",
+        "pkf_version": pkf.__version__,
+        "reference_fitter": reference,
+        "fitter_order": names,
+        "settings": {
+            "resolution_location": RESOLUTION_LOCATION,
+            "pull_location": PULL_LOCATION,
+            "mass_location": MASS_LOCATION,
+            "p_edges_mev": P_EDGES_MEV.tolist(),
+            "eta_edges": ETA_EDGES.tolist(),
+            "chi2_ndf_cuts": CHI2_NDF_CUTS.tolist(),
+            "mass_window_mev": list(MASS_WINDOW_MEV),
+            "mass_fit": "Gaussian + linear background, extended unbinned maximum likelihood (iminuit)",
+        },
+        "runs": run_summaries,
+        "fitters": fitters,
+    }
+    return ReportData(summary, arrays)

@@ -1,0 +1,353 @@
+"""Report plots (paper Figs. 1–4, DESIGN §11): PNG files drawn with matplotlib (Agg) in the mplhep LHCb style.
+
+:func:`make_plots` writes every plot of a :class:`~pkf.report.metrics.ReportData`
+into a directory and returns, per report section, the list of :class:`Plot` it
+wrote (file name relative to that directory and a caption). Histograms are filled
+with ``hist`` and drawn with ``mplhep.histplot``. The style is applied with a
+context manager (no global matplotlib state is changed), and every figure is
+closed after saving.
+
+Files: ``resolution.png`` (δp/p, x, tx vs p per fitter with the ratio to the
+reference), ``pulls_<fitter>.png`` (five pull histograms with the Gaussian core
+fits), ``chi2.png`` (χ²/ndf real vs ghost per fitter + efficiency / rejection),
+``mass.png`` (B_s mass peak with fit per fitter), ``efficiency.png`` (efficiency
+vs p and η). A plot whose data are missing is not written; the HTML says why.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import hist  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402
+import mplhep  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.stats import norm  # noqa: E402
+
+from pkf.report.metrics import (  # noqa: E402
+    CHI2_NDF_CUTS,
+    ETA_EDGES,
+    MASS_WINDOW_MEV,
+    P_EDGES_MEV,
+    ReportData,
+)
+
+__all__ = ["Plot", "make_plots", "plot_file_name", "DPI"]
+
+#: Resolution of the PNG files [dots per inch] (LHCb2 style figures are 12 × 9 inch).
+DPI = 50
+_STYLE = mplhep.style.LHCb2
+_MARKERS = ("o", "s", "^", "D", "v", "P")
+#: Resolution panels of Fig. 1: variable, axis label, scale to display units.
+_RESOLUTION_PANELS = (
+    ("dp_over_p", r"$\sigma(\delta p/p)$ [%]", 100.0),
+    ("x", r"$\sigma(x)$ [$\mu$m]", 1000.0),
+    ("tx", r"$\sigma(t_x)$ [mrad]", 1000.0),
+)
+_PULL_LABELS = {"x": "$x$", "y": "$y$", "tx": "$t_x$", "ty": "$t_y$", "qop": "$q/p$"}
+_MASS_BIN_MEV = 10.0
+
+
+@dataclass(frozen=True)
+class Plot:
+    """A written PNG: ``file`` relative to the report directory, and its caption."""
+
+    file: str
+    caption: str
+
+
+def plot_file_name(stem: str, fitter: str, taken: set[str]) -> str:
+    """A safe, unique PNG name ``<stem>_<fitter>.png`` (fitter names come from the data)."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", fitter).strip("._") or "fitter"
+    name = f"{stem}_{safe}.png"
+    k = 2
+    while name in taken:
+        name = f"{stem}_{safe}_{k}.png"
+        k += 1
+    taken.add(name)
+    return name
+
+
+def _save(fig, path: Path) -> None:
+    fig.savefig(path, dpi=DPI, format="png", bbox_inches="tight")
+    plt.close(fig)
+
+
+def _colors(names: list[str]) -> dict[str, str]:
+    cycle = _STYLE["axes.prop_cycle"].by_key()["color"]
+    return {name: cycle[i % len(cycle)] for i, name in enumerate(names)}
+
+
+def _fmt(value, spec: str = ".3f") -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
+def _no_data(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=20, wrap=True)
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+# ----------------------------------------------------------------------------- Fig. 1
+
+
+def _plot_resolution(data: ReportData, out: Path) -> list[Plot]:
+    summary = data.summary
+    names = [n for n in data.fitter_order if summary["fitters"][n]["resolution"]["available"]]
+    if not names:
+        return []
+    reference = summary["reference_fitter"]
+    colors = _colors(data.fitter_order)
+    edges = P_EDGES_MEV / 1000.0
+    centres, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
+    fig, axes = plt.subplots(2, 3, figsize=(33, 12), gridspec_kw={"height_ratios": [3, 1], "hspace": 0.05},
+                             sharex="col")
+    for col, (var, label, scale) in enumerate(_RESOLUTION_PANELS):
+        ax, rax = axes[0, col], axes[1, col]
+        top, ratio_values = [], []
+        for i, name in enumerate(names):
+            res = summary["fitters"][name]["resolution"]
+            bins = res["variables"][var]["bins"]
+            rms = np.array([np.nan if v is None else v * scale for v in bins["rms"]])
+            core = np.array([np.nan if v is None else v * scale for v in bins["core_sigma"]])
+            top.extend(rms[np.isfinite(rms)])
+            marker = _MARKERS[i % len(_MARKERS)]
+            ax.errorbar(centres, rms, xerr=half, fmt=marker, color=colors[name], label=f"{name} RMS")
+            ax.errorbar(centres, core, xerr=half, fmt=marker, color=colors[name], mfc="none", alpha=0.8,
+                        label=f"{name} core $\\sigma$")
+            ratio = res.get("ratio_to_reference")
+            if ratio is not None:
+                r_rms = np.array([np.nan if v is None else v for v in ratio[var]["rms"]])
+                r_core = np.array([np.nan if v is None else v for v in ratio[var]["core_sigma"]])
+                ratio_values.extend(v for v in np.r_[r_rms, r_core] if np.isfinite(v))
+                rax.errorbar(centres, r_rms, xerr=half, fmt=marker, color=colors[name])
+                rax.errorbar(centres, r_core, xerr=half, fmt=marker, color=colors[name], mfc="none", alpha=0.8)
+        positive = [v for v in top if v > 0]
+        if positive and max(positive) / min(positive) > 20:
+            ax.set_yscale("log")
+            ax.set_ylim(min(positive) / 2, max(positive) * 4)
+        else:
+            ax.set_ylim(0, 1.4 * max(positive) if positive else 1)
+        ax.set_ylabel(label)
+        ax.set_xlim(edges[0], edges[-1])
+        ax.set_xscale("log")
+        ax.legend(fontsize=16, loc="upper right")
+        rax.axhline(1.0, color="grey", lw=1.5, ls="--")
+        spread = max([abs(v - 1.0) for v in ratio_values] + [0.1])
+        rax.set_ylim(1.0 - 1.2 * min(spread, 0.9), 1.0 + 1.2 * spread)
+        rax.set_ylabel(f"/ {reference}" if reference else "ratio", fontsize=20)
+        if reference is None:
+            rax.text(0.5, 0.5, "no reference fitter in these runs", transform=rax.transAxes, ha="center",
+                     va="center", fontsize=18)
+        rax.set_xlabel(r"$p_\mathrm{true}$ [GeV]")
+        rax.set_xscale("log")
+    _save(fig, out / "resolution.png")
+    caption = ("Resolution at the first hit vs true momentum: RMS (filled) and Gaussian core σ (open) "
+               "of δp/p, x and tx per fitter; lower panels: ratio to the reference fitter.")
+    return [Plot("resolution.png", caption)]
+
+
+# ----------------------------------------------------------------------------- Fig. 2
+
+
+def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
+    plots = []
+    for name in data.fitter_order:
+        section = data.summary["fitters"][name]["pulls"]
+        if not section["available"]:
+            continue
+        arrays = data.arrays[name]
+        fig, axes = plt.subplots(2, 3, figsize=(33, 20))
+        for ax, par in zip(axes.flat, ("qop", "x", "tx", "y", "ty")):
+            values = arrays.pulls[par]
+            h = hist.Hist(hist.axis.Regular(50, -5, 5, name="pull", label=f"pull {_PULL_LABELS[par]}"))
+            h.fill(values[np.isfinite(values)])
+            mplhep.histplot(h, ax=ax, yerr=True, histtype="errorbar", color="black", label=f"{name}")
+            stats = section["parameters"][par]
+            text = [f"RMS = {_fmt(stats['rms'])}"]
+            if stats["width"] is not None and stats["mean"] is not None:
+                width = h.axes[0].widths[0]
+                # the core fit is normalised to its ±3σ window, which holds n_core pulls
+                scale = stats["n_core"] / (norm.cdf(3) - norm.cdf(-3)) * width
+                grid = np.linspace(-5, 5, 400)
+                ax.plot(grid, scale * norm.pdf(grid, stats["mean"], stats["width"]), color="#FF3333",
+                        label="Gaussian fit")
+                text = [f"mean = {_fmt(stats['mean'])} $\\pm$ {_fmt(stats['mean_error'])}",
+                        f"width = {_fmt(stats['width'])} $\\pm$ {_fmt(stats['width_error'])}"] + text
+            n_out = int(np.sum(np.abs(values[np.isfinite(values)]) >= 5))
+            text.append(f"outside $\\pm$5: {n_out}")
+            ax.text(0.03, 0.97, "\n".join(text), transform=ax.transAxes, va="top", ha="left", fontsize=18)
+            ax.set_xlabel(f"pull {_PULL_LABELS[par]}")
+            ax.set_ylabel("tracks / 0.2")
+            ax.set_ylim(0, 1.3 * max(float(h.values().max()), 1.0))
+            ax.legend(fontsize=18, loc="upper right")
+        axes.flat[-1].axis("off")
+        axes.flat[-1].text(0.0, 0.6, f"{name}\npulls at the first hit\n(fit − true)/σ", fontsize=26,
+                           transform=axes.flat[-1].transAxes, va="center")
+        file = plot_file_name("pulls", name, taken)
+        _save(fig, out / file)
+        plots.append(Plot(file, f"Pulls of {name} at the first hit with the Gaussian core fit "
+                                f"(iterative ±3σ, unbinned); mean, width and RMS in the legend."))
+    return plots
+
+
+# ----------------------------------------------------------------------------- Fig. 3
+
+
+def _plot_chi2(data: ReportData, out: Path) -> list[Plot]:
+    names = data.fitter_order
+    if not names:
+        return []
+    colors = _colors(names)
+    n = len(names) + 1
+    fig, axes = plt.subplots(1, n, figsize=(11 * n, 9))
+    bins = np.linspace(0, 10, 51)
+    any_ghosts = False
+    for ax, name in zip(axes, names):
+        arrays = data.arrays[name]
+        section = data.summary["fitters"][name]["chi2"]
+        series = ([("real", arrays.chi2_ndf_real, "black"), ("ghost", arrays.chi2_ndf_ghost, "#FF3333")]
+                  if section["has_mc"] else [("all tracks", arrays.chi2_ndf_all, "black")])
+        drawn = False
+        for label, values, color in series:
+            if values.size == 0:
+                continue
+            h = hist.Hist(hist.axis.Regular(50, 0, 10, name="chi2ndf"))
+            h.fill(np.clip(values, 0, 10 - 1e-9))  # overflow into the last bin
+            mplhep.histplot(h, ax=ax, density=True, yerr=False, color=color, label=f"{label} ({values.size})")
+            drawn = True
+        any_ghosts |= bool(section["has_ghosts"])
+        if not drawn:
+            _no_data(ax, f"{name}: no fitted track")
+            continue
+        ax.set_yscale("log")
+        ax.set_ylim(None, ax.get_ylim()[1] * 5)
+        ax.set_xlim(bins[0], bins[-1])
+        ax.set_xlabel(r"$\chi^2_\mathrm{track}/N_\mathrm{dof}$")
+        ax.set_ylabel("normalised")
+        ax.set_title(name, fontsize=26)
+        ax.legend(fontsize=18, loc="upper right")
+        if section["has_mc"] and not section["has_ghosts"]:
+            ax.text(0.97, 0.6, "no ghost tracks", transform=ax.transAxes, ha="right", fontsize=20, color="#FF3333")
+    ax = axes[-1]
+    cuts = np.asarray(CHI2_NDF_CUTS)
+    for i, name in enumerate(names):
+        scan = data.summary["fitters"][name]["chi2"]["cut_scan"]
+        marker = _MARKERS[i % len(_MARKERS)]
+        eff = scan.get("real_efficiency") or scan.get("all_efficiency")
+        if eff is None:
+            continue
+        eff = np.array([np.nan if v is None else v for v in eff])
+        if any_ghosts and scan["ghost_rejection"] is not None:
+            rej = np.array([np.nan if v is None else v for v in scan["ghost_rejection"]])
+            ax.plot(eff, rej, marker=marker, color=colors[name], label=name, markersize=10, lw=2)
+        elif not any_ghosts:
+            ax.plot(cuts, eff, marker=marker, color=colors[name], label=name, markersize=10, lw=2)
+    if any_ghosts:
+        ax.set_xlabel("real track efficiency")
+        ax.set_ylabel("ghost rejection")
+        ax.set_xlim(0, 1.02)
+        ax.set_ylim(0, 1.02)
+    else:
+        ax.set_xlabel(r"cut on $\chi^2/N_\mathrm{dof}$")
+        ax.set_ylabel("track efficiency")
+        ax.set_ylim(0, 1.05)
+        ax.text(0.95, 0.1, "no ghost tracks:\nrejection undefined", transform=ax.transAxes, ha="right",
+                fontsize=20)
+    ax.legend(fontsize=18, loc="lower left")
+    _save(fig, out / "chi2.png")
+    caption = ("χ²/ndf of real (black) and ghost (red) tracks per fitter, normalised (overflow in the last bin); "
+               "right: real-track efficiency vs ghost rejection for upper cuts on χ²/ndf "
+               f"({cuts[0]:g} to {cuts[-1]:g}).")
+    return [Plot("chi2.png", caption)]
+
+
+# ----------------------------------------------------------------------------- Fig. 4
+
+
+def _plot_mass(data: ReportData, out: Path) -> list[Plot]:
+    names = [n for n in data.fitter_order if data.arrays[n].masses.size]
+    if not names:
+        return []
+    colors = _colors(data.fitter_order)
+    lo, hi = MASS_WINDOW_MEV
+    nbins = int(round((hi - lo) / _MASS_BIN_MEV))
+    fig, axes = plt.subplots(1, len(names), figsize=(12 * len(names), 9), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        arrays = data.arrays[name]
+        h = hist.Hist(hist.axis.Regular(nbins, lo, hi, name="mass"))
+        h.fill(arrays.masses)
+        mplhep.histplot(h, ax=ax, yerr=True, histtype="errorbar", color="black", label=f"{name} candidates")
+        fit = arrays.mass_fit
+        if fit is not None and np.isfinite(fit.sigma):
+            grid = np.linspace(lo, hi, 500)
+            ax.plot(grid, fit.density(grid) * _MASS_BIN_MEV, color=colors[name],
+                    label=f"fit: $\\sigma$ = {fit.sigma:.1f} $\\pm$ {fit.sigma_error:.1f} MeV")
+            ax.plot(grid, fit.background_density(grid) * _MASS_BIN_MEV, color=colors[name], ls="--",
+                    label="background")
+            ax.text(0.03, 0.97, f"$\\mu$ = {fit.mean:.1f} $\\pm$ {fit.mean_error:.1f} MeV\n"
+                                f"$N_\\mathrm{{sig}}$ = {fit.n_signal:.0f}\nstatus: {fit.status}",
+                    transform=ax.transAxes, va="top", fontsize=18)
+        elif fit is not None:
+            ax.text(0.03, 0.97, f"no fit: {fit.status}", transform=ax.transAxes, va="top", fontsize=18)
+        ax.set_xlim(lo, hi)
+        ax.set_ylim(0, 1.35 * max(float(h.values().max()), 1.0))
+        ax.set_xlabel(r"$m(K^+K^-K^+K^-)$ [MeV]")
+        ax.set_ylabel(f"candidates / {_MASS_BIN_MEV:g} MeV")
+        ax.legend(fontsize=18, loc="upper right")
+    _save(fig, out / "mass.png")
+    caption = ("B_s⁰ → φφ invariant mass from the four truth-matched kaon tracks (beamline states) per fitter, "
+               "with the Gaussian + linear fit (extended unbinned maximum likelihood).")
+    return [Plot("mass.png", caption)]
+
+
+# ----------------------------------------------------------------------------- efficiency
+
+
+def _plot_efficiency(data: ReportData, out: Path) -> list[Plot]:
+    names = [n for n in data.fitter_order if data.summary["fitters"][n]["efficiency"]["available"]]
+    if not names:
+        return []
+    colors = _colors(data.fitter_order)
+    fig, axes = plt.subplots(1, 2, figsize=(24, 9))
+    for ax, key, edges, label in ((axes[0], "vs_p", P_EDGES_MEV / 1000.0, r"$p$ [GeV]"),
+                                  (axes[1], "vs_eta", ETA_EDGES, r"$\eta$")):
+        centres, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
+        for i, name in enumerate(names):
+            section = data.summary["fitters"][name]["efficiency"][key]
+            eff = np.array([np.nan if v is None else v for v in section["efficiency"]])
+            lo = np.array([0.0 if v is None else v for v in section["error_low"]])
+            hi = np.array([0.0 if v is None else v for v in section["error_high"]])
+            ax.errorbar(centres, eff, xerr=half, yerr=[lo, hi], fmt=_MARKERS[i % len(_MARKERS)],
+                        color=colors[name], label=name)
+        ax.set_xlabel(label)
+        ax.set_ylabel("efficiency")
+        ax.set_ylim(0, 1.1)
+        ax.set_xlim(edges[0], edges[-1])
+        ax.legend(fontsize=18, loc="lower right")
+    axes[0].set_xscale("log")
+    _save(fig, out / "efficiency.png")
+    caption = ("Efficiency for reconstructible long particles (fitted track with status ok matched to the particle) "
+               "vs true momentum and pseudorapidity, Clopper–Pearson 68% errors.")
+    return [Plot("efficiency.png", caption)]
+
+
+def make_plots(data: ReportData, out: Path) -> dict[str, list[Plot]]:
+    """Write every plot of the report into ``out``; per section id, the plots written."""
+    out = Path(out)
+    taken = {"resolution.png", "chi2.png", "mass.png", "efficiency.png"}
+    with plt.style.context(_STYLE):
+        return {
+            "resolution": _plot_resolution(data, out),
+            "pulls": _plot_pulls(data, out, taken),
+            "chi2": _plot_chi2(data, out),
+            "mass": _plot_mass(data, out),
+            "efficiency": _plot_efficiency(data, out),
+            "timing": [],
+        }

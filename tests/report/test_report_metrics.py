@@ -1,0 +1,194 @@
+"""summary.json numbers against the run tables they come from (DESIGN §10–§11)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.compute as pc
+import pytest
+from report_helpers import read_summary, write_synthetic_run
+
+from pkf.io.reader import read_table
+from pkf.io.schemas import PULLS, STATES
+from pkf.pipeline.report import run_report
+from pkf.report.gauss import gaussian_core
+from pkf.report.metrics import CHI2_NDF_CUTS, P_EDGES_MEV
+
+
+def _first_hit(run, schema, name, fitter):
+    table = read_table(run, schema, name=name)
+    mask = pc.and_(pc.equal(table.column("fitter"), fitter), pc.equal(table.column("location"), "first_hit"))
+    return table.filter(mask).to_pydict()
+
+
+def _rms(v):
+    v = np.asarray(v)
+    return float(np.sqrt(np.mean(v**2)))
+
+
+def test_summary_json_is_the_returned_summary(telescope_report):
+    out, summary = telescope_report
+    on_disk = read_summary(out)
+    assert on_disk == json.loads(json.dumps(summary))  # no NaN in this summary: identical
+    assert on_disk["kind"] == "report"
+    assert on_disk["fitter_order"] == ["parametrized", "reference"]
+    assert on_disk["reference_fitter"] == "reference"
+    assert [r["fitters"] for r in on_disk["runs"]] == [["parametrized"], ["reference"]]
+
+
+@pytest.mark.parametrize("fitter", ["parametrized", "reference"])
+def test_pulls_equal_pulls_table(telescope_runs, telescope_report, fitter):
+    _, summary = telescope_report
+    pulls = _first_hit(telescope_runs[fitter], PULLS, "pulls", fitter)
+    section = summary["fitters"][fitter]["pulls"]
+    assert section["available"] and section["location"] == "first_hit"
+    for par in ("x", "y", "tx", "ty", "qop"):
+        values = np.asarray(pulls[f"pull_{par}"])
+        core = gaussian_core(values)
+        got = section["parameters"][par]
+        assert got["n"] == values.size > 500
+        assert got["mean"] == pytest.approx(core.mean, rel=1e-12, abs=1e-15)
+        assert got["width"] == pytest.approx(core.sigma, rel=1e-12)
+        assert got["width_error"] == pytest.approx(core.sigma_error, rel=1e-9)
+        assert got["rms"] == pytest.approx(_rms(values), rel=1e-12)
+        # the telescope fit is exact: the pulls are standard normal
+        assert abs(got["mean"]) < 0.2 and 0.85 < got["width"] < 1.15
+
+
+@pytest.mark.parametrize("fitter", ["parametrized", "reference"])
+def test_resolutions_equal_pulls_table(telescope_runs, telescope_report, fitter):
+    _, summary = telescope_report
+    run = telescope_runs[fitter]
+    pulls = _first_hit(run, PULLS, "pulls", fitter)
+    states = _first_hit(run, STATES, "states", fitter)
+    p_true = np.asarray(pulls["p_true"])
+    qop_of = dict(zip(zip(states["event_id"], states["track_id"]), states["qop"]))
+    qop = np.array([qop_of[k] for k in zip(pulls["event_id"], pulls["track_id"])])
+    values = {"x": np.asarray(pulls["res_x"]), "tx": np.asarray(pulls["res_tx"]),
+              "dp_over_p": (1.0 / np.abs(qop) - p_true) / p_true}
+    res = summary["fitters"][fitter]["resolution"]
+    assert res["p_edges_mev"] == P_EDGES_MEV.tolist()
+    checked = 0
+    for var, v in values.items():
+        got = res["variables"][var]
+        assert got["all"]["rms"] == pytest.approx(_rms(v), rel=1e-9)
+        assert got["all"]["core_sigma"] == pytest.approx(gaussian_core(v).sigma, rel=1e-6)
+        for i, (lo, hi) in enumerate(zip(P_EDGES_MEV[:-1], P_EDGES_MEV[1:])):
+            in_bin = v[(p_true >= lo) & (p_true < hi)]
+            assert got["bins"]["n"][i] == in_bin.size
+            if in_bin.size == 0:
+                assert got["bins"]["rms"][i] is None
+                continue
+            assert got["bins"]["rms"][i] == pytest.approx(_rms(in_bin), rel=1e-9)
+            if in_bin.size >= 10:
+                assert got["bins"]["core_sigma"][i] == pytest.approx(gaussian_core(in_bin).sigma, rel=1e-6)
+                checked += 1
+    assert checked >= 10
+
+
+def test_ratio_and_speed_up_vs_reference(telescope_runs, telescope_report):
+    _, summary = telescope_report
+    par, ref = summary["fitters"]["parametrized"], summary["fitters"]["reference"]
+    assert ref["resolution"]["ratio_to_reference"] is None
+    ratio = par["resolution"]["ratio_to_reference"]["dp_over_p"]["rms"]
+    for r, a, b in zip(ratio, par["resolution"]["variables"]["dp_over_p"]["bins"]["rms"],
+                       ref["resolution"]["variables"]["dp_over_p"]["bins"]["rms"]):
+        assert (r is None) == (a is None or b is None)
+        if r is not None:
+            assert r == pytest.approx(a / b, rel=1e-12)
+    timing = {f: json.loads((telescope_runs[f] / "run.json").read_text())["timing"]["fit"][f]
+              for f in ("parametrized", "reference")}
+    assert par["timing"]["tracks_per_s"] == pytest.approx(timing["parametrized"]["tracks_per_s"])
+    assert par["timing"]["speed_up_vs_reference"] == pytest.approx(
+        timing["parametrized"]["tracks_per_s"] / timing["reference"]["tracks_per_s"])
+    assert par["timing"]["same_run_as_reference"] is False  # two runs: not the §12 protocol
+    assert ref["timing"]["speed_up_vs_reference"] == 1.0
+
+
+def test_efficiency_and_rates_match_run_json(bs_run, bs_report):
+    _, summary = bs_report
+    run_json = json.loads((bs_run / "run.json").read_text())
+    pattern = summary["runs"][0]["pattern"]
+    assert pattern["run_json"] == run_json["pattern"]
+    recomputed = pattern["recomputed"]
+    assert recomputed["reconstructible"] == run_json["pattern"]["reconstructible"] > 100
+    for key in ("efficiency", "ghost_rate", "clone_rate"):
+        assert recomputed[key] == pytest.approx(run_json["pattern"][key])
+    eff = summary["fitters"]["reference"]["efficiency"]
+    assert eff["available"] and eff["reconstructible"] == recomputed["reconstructible"]
+    assert eff["found"] <= eff["reconstructible"] and eff["efficiency"] > 0.9
+    assert sum(eff["vs_p"]["reconstructible"]) <= eff["reconstructible"]
+    assert sum(eff["vs_eta"]["found"]) <= eff["found"]
+    assert sum(eff["vs_eta"]["reconstructible"]) > 0.5 * eff["reconstructible"]
+
+
+def test_bs_mass_from_matched_kaons(bs_report):
+    _, summary = bs_report
+    mass = summary["fitters"]["reference"]["mass"]
+    assert mass["location"] == "beamline"
+    assert mass["n_signal_decays"] == 30
+    assert 10 <= mass["n_candidates"] <= 30
+    fit = mass["fit"]
+    assert fit["status"] == "ok", mass
+    assert abs(fit["mean"] - 5366.92) < 5 * fit["mean_error"] + 2.0
+    assert 2.0 < fit["sigma"] < 60.0
+
+
+def test_no_ghosts_is_said_not_invented(bs_report):
+    _, summary = bs_report
+    chi2 = summary["fitters"]["reference"]["chi2"]
+    assert chi2["has_mc"] and not chi2["has_ghosts"]
+    assert chi2["ghost"] is None and chi2["cut_scan"]["ghost_rejection"] is None
+    assert "no ghost" in chi2["note"]
+    assert chi2["real"]["n"] == summary["fitters"]["reference"]["tracks"]["matched"]
+
+
+def test_chi2_scan_with_ghosts(tmp_path):
+    run = tmp_path / "run"
+    truth = write_synthetic_run(run, fitters=("parametrized", "reference"), ghost_fraction=0.3)
+    summary = run_report([run], tmp_path / "report")
+    for fitter, t in truth.items():
+        chi2 = summary["fitters"][fitter]["chi2"]
+        real = t["chi2_ndf"][t["ok"] & ~t["ghost"]]
+        ghost = t["chi2_ndf"][t["ok"] & t["ghost"]]
+        assert chi2["has_ghosts"] and chi2["note"] is None
+        assert chi2["real"]["n"] == real.size and chi2["ghost"]["n"] == ghost.size
+        assert chi2["ghost"]["median"] == pytest.approx(np.median(ghost))
+        scan = chi2["cut_scan"]
+        assert scan["cuts"] == CHI2_NDF_CUTS.tolist()
+        for c, eff, rej in zip(scan["cuts"], scan["real_efficiency"], scan["ghost_rejection"]):
+            assert eff == pytest.approx(np.mean(real < c))
+            assert rej == pytest.approx(np.mean(ghost >= c))
+        assert summary["fitters"][fitter]["tracks"]["failed"] == int((~t["ok"]).sum())
+    # no dataset: the sections that need it say so
+    assert not summary["fitters"]["reference"]["mass"]["available"]
+    assert "dataset" in summary["fitters"]["reference"]["efficiency"]["note"]
+    # one run, both fitters: the speed-up follows the §12 protocol
+    timing = summary["fitters"]["parametrized"]["timing"]
+    assert timing["same_run_as_reference"] is True and timing["speed_up_vs_reference"] == pytest.approx(2.0)
+
+
+def test_run_without_mc(tmp_path):
+    run = tmp_path / "run"
+    write_synthetic_run(run, fitters=("reference",), has_mc=False)
+    summary = run_report([run], tmp_path / "report")
+    rep = summary["fitters"]["reference"]
+    assert not rep["resolution"]["available"] and "no MC" in rep["resolution"]["note"]
+    assert not rep["pulls"]["available"]
+    assert not rep["chi2"]["has_mc"] and rep["chi2"]["real"] is None and rep["chi2"]["all"]["n"] > 500
+    assert not rep["mass"]["available"] and not rep["efficiency"]["available"]
+    html = (tmp_path / "report" / "index.html").read_text()
+    assert "no MC truth" in html
+
+
+def test_tiny_run_has_no_fits_but_a_report(tmp_path):
+    run = tmp_path / "run"
+    write_synthetic_run(run, fitters=("parametrized", "reference"), n_tracks=8, ghost_fraction=0.0)
+    summary = run_report([run], tmp_path / "report")
+    pulls = summary["fitters"]["parametrized"]["pulls"]["parameters"]["x"]
+    assert pulls["n"] <= 8 and pulls["width"] is None and pulls["rms"] is not None
+    bins = summary["fitters"]["parametrized"]["resolution"]["variables"]["x"]["bins"]
+    assert all(v is None for v in bins["core_sigma"])
+    assert (tmp_path / "report" / "index.html").is_file()
+    json.dumps(summary, allow_nan=False)  # undefined numbers are None, never NaN
