@@ -45,7 +45,7 @@ def straight_line_extrapolator(geometry: Geometry, mass: float = MASS_PION) -> S
                                     float(mass), False)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _straight_segment(state, dz, jac, noise, seg, tmp, tmp2):
     state[0] += state[2] * dz
     state[1] += state[3] * dz
@@ -63,7 +63,7 @@ def _straight_segment(state, dz, jac, noise, seg, tmp, tmp2):
     copy55(tmp2, noise)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def straight_line_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
     """Straight line with the material of the planes in (min z, max z]."""
     copy5(state_in, state_out)

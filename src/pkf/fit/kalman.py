@@ -56,7 +56,7 @@ SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _invert_general(a, out, lu, perm):
     """out = a⁻¹ for a general 5×5 matrix (LU with partial pivoting). False if singular."""
     for i in range(5):
@@ -100,7 +100,7 @@ def _invert_general(a, out, lu, perm):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _scalar_update(x, p, hx, hy, m, var):
     """Kalman update of (x, P) with one scalar measurement m = hx·x + hy·y (variance var).
 
@@ -124,7 +124,7 @@ def _scalar_update(x, p, hx, hy, m, var):
     return r * r / s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
     """Standardised χ² r·R⁻¹·r of one node's smoothed residual r = m − H·x, with
     R = V − H·C·Hᵀ (active node) or V + H·C·Hᵀ (outlier) the residual's covariance;

@@ -28,7 +28,7 @@ def copy55(src, dst):
             dst[i, j] = src[i, j]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def set_identity(a):
     """a = 1 (5×5)."""
     for i in range(5):
@@ -36,7 +36,7 @@ def set_identity(a):
             a[i, j] = 1.0 if i == j else 0.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def matmul55(a, b, out):
     """out = a·b (5×5); out must not alias a or b."""
     for i in range(5):
@@ -47,7 +47,7 @@ def matmul55(a, b, out):
             out[i, j] = s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def matvec5(a, v, out):
     """out = a·v (5×5 times 5-vector)."""
     for i in range(5):
@@ -57,7 +57,7 @@ def matvec5(a, v, out):
         out[i] = s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def sandwich(f, c, tmp, out):
     """out = f·c·fᵀ (5×5), symmetrised; tmp is 5×5 scratch."""
     for i in range(5):
@@ -75,7 +75,7 @@ def sandwich(f, c, tmp, out):
             out[j, i] = s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def symmetrise(a):
     """a = (a + aᵀ)/2 in place (5×5)."""
     for i in range(5):
@@ -85,7 +85,7 @@ def symmetrise(a):
             a[j, i] = m
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def invert_spd(a, out, work, vec):
     """out = a⁻¹ for a symmetric positive-definite 5×5 matrix.
 

@@ -64,7 +64,7 @@ class ParametrizedExtrapolator(NamedTuple):
     uts_coef: np.ndarray
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _layer_of(layer_z, z):
     i = search_sorted(layer_z, z, False)
     if i < layer_z.size and abs(layer_z[i] - z) < 1e-6:
@@ -72,7 +72,7 @@ def _layer_of(layer_z, z):
     return -1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
     """One paper step of `kind` with parameters `p`; returns a status."""
     if kind == STEP_VELO:
@@ -102,7 +102,7 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
     return STATUS_OK
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def next_step(layer_sub, sub_last, within_type, between_type, cur, target):
     """(kind, slot, next layer) of the paper step from layer `cur` towards layer `target`."""
     s = layer_sub[cur]
@@ -123,14 +123,16 @@ def next_step(layer_sub, sub_last, within_type, between_type, cur, target):
     return leave, last, last + 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
     """Downstream transport between two layers through the chain of paper steps."""
     copy5(state_in, state_out)
-    set_identity(jac_out)
-    for i in range(5):
-        for j in range(5):
-            noise_out[i, j] = 0.0
+    if z_to == z_from:
+        set_identity(jac_out)
+        for i in range(5):
+            for j in range(5):
+                noise_out[i, j] = 0.0
+        return STATUS_OK
     # small helpers get plain arrays: passing the whole context costs ~20 reference counts
     layer_z = ext.layer_z
     a = _layer_of(layer_z, z_from)
@@ -143,6 +145,7 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
     tmp2 = work[3]
     seg_state = work[5, 0]
     cur = a
+    first = True
     while cur < b:
         kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type, cur, b)
         status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
@@ -151,12 +154,17 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
             return status
         parametrized_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_noise)
         copy5(seg_state, state_out)
-        matmul55(seg_jac, jac_out, tmp)
-        copy55(tmp, jac_out)
-        sandwich(seg_jac, noise_out, tmp, tmp2)
-        for i in range(5):
-            for j in range(5):
-                noise_out[i, j] = tmp2[i, j] + seg_noise[i, j]
+        if first:  # F = J, Q = Q_seg: most node-to-node steps are a single paper step
+            copy55(seg_jac, jac_out)
+            copy55(seg_noise, noise_out)
+            first = False
+        else:  # F ← J·F, Q ← J·Q·Jᵀ + Q_seg
+            matmul55(seg_jac, jac_out, tmp)
+            copy55(tmp, jac_out)
+            sandwich(seg_jac, noise_out, tmp, tmp2)
+            for i in range(5):
+                for j in range(5):
+                    noise_out[i, j] = tmp2[i, j] + seg_noise[i, j]
         cur = nxt
     return STATUS_OK
 

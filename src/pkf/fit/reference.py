@@ -75,7 +75,7 @@ def reference_extrapolator(geometry: Geometry, mass: float = MASS_PION,
     )
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def add_plane_material(ext, k, state, direction, jac, noise):
     """Material of plane k at `state` (x, y, tx, ty, q/p) crossed in `direction` (±1).
 
@@ -115,7 +115,7 @@ def add_plane_material(ext, k, state, direction, jac, noise):
             noise[j, 4] *= d
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _transport_segment(ext, state, z_from, z_to, jac, noise, seg_jac, tmp, tmp2):
     """RK4 from z_from to z_to; accumulate jac = J·jac and noise = J·noise·Jᵀ."""
     if z_to == z_from:
@@ -135,7 +135,7 @@ def _transport_segment(ext, state, z_from, z_to, jac, noise, seg_jac, tmp, tmp2)
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def reference_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work):
     """Transport through the field map and the material planes in (min z, max z]."""
     copy5(state_in, state_out)
