@@ -54,6 +54,7 @@ from pkf.fit.linalg import copy5, copy55, invert_spd, matmul55, sandwich, symmet
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
+SMOOTHER_NONE = 2  # forward filter only (filtered states as output): for timing studies
 
 
 @nb.njit(cache=True, inline="always")
@@ -201,6 +202,11 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
                 if increment < 0.0:
                     return STATUS_NOT_POSITIVE_DEFINITE, chi2
                 chi2 += increment
+    if smoother == SMOOTHER_NONE:
+        for k in range(n):
+            copy5(filt[k], out_state[k])
+            copy55(filt_cov[k], out_cov[k])
+        return STATUS_OK, chi2
     if smoother == SMOOTHER_RTS:
         status = _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5, perm)
     else:
