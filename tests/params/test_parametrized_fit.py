@@ -81,3 +81,20 @@ def test_parameters_of_another_geometry_are_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "parameters are for geometry" in err and err.count("\n") == 1
     assert not (tmp_path / "run").exists()
+
+
+def test_below_p_min_tracks_get_a_status_not_nan():
+    """Long tracks below the UT→SciFi table's p_min (3 GeV) are kept with status
+    'momentum below the parametrization's p_min'; nothing is NaN where status is ok."""
+    geometry = load_geometry("lhcb-like")
+    sample = TruthSample(geometry, events=60, seed=5, particles=10, p_min=1500.0, p_max=2600.0,
+                         eta_min=2.0, eta_max=5.0)
+    result = fit_batch(shipped_parameters(geometry).extrapolator(geometry), sample.batch, FitOptions(),
+                       sample.seeds, sample.seed_covs)
+    long = sample.long_tracks()
+    assert long.sum() > 100
+    names = result.status_names()
+    assert np.mean(names[long] == "momentum below the parametrization's p_min") > 0.95
+    ok = result.status == 0
+    assert np.all(np.isfinite(result.chi2[ok]))
+    assert np.all(np.isfinite(result.locations["first_hit"][1][ok]))
