@@ -1,0 +1,33 @@
+"""The beamline state: point of closest approach to the z axis, material noise added."""
+
+import numpy as np
+import pytest
+
+from pkf.fit.beamline import beamline_states, straight_line_extrapolator
+from pkf.geometry import load_geometry
+
+
+def test_point_of_closest_approach_and_material_noise():
+    geometry = load_geometry("lhcb-like")
+    ext = straight_line_extrapolator(geometry)
+    # a straight track through (1, -2, 30) with slopes (0.05, 0.02), state given at z = 100
+    z0, tx, ty = 100.0, 0.05, 0.02
+    x0, y0 = 1.0 + tx * (z0 - 30.0), -2.0 + ty * (z0 - 30.0)
+    state = np.array([[x0, y0, tx, ty, 1 / 5000.0]])
+    cov = np.diag([1e-4, 1e-4, 1e-8, 1e-8, 1e-12])[None]
+    out_z, out_s, out_c = np.empty(1), np.empty((1, 5)), np.empty((1, 5, 5))
+    beamline_states(ext, np.array([z0]), state, cov, out_z, out_s, out_c)
+    # closest approach of the line to the z axis
+    expected_z = z0 - (x0 * tx + y0 * ty) / (tx * tx + ty * ty)
+    assert out_z[0] == pytest.approx(expected_z, abs=1e-9)
+    assert out_s[0, 0] * tx + out_s[0, 1] * ty == pytest.approx(0.0, abs=1e-9)
+    assert np.allclose(out_s[0, 2:], state[0, 2:])  # straight line, no energy loss
+    # covariance: straight-line transport plus scattering in the VELO modules crossed
+    dz = expected_z - z0
+    f = np.eye(5)
+    f[0, 2] = f[1, 3] = dz
+    transported = f @ cov[0] @ f.T
+    assert np.all(np.diag(out_c[0])[:4] >= np.diag(transported)[:4] - 1e-15)
+    crossed = (geometry.planes.z > expected_z) & (geometry.planes.z <= z0)
+    assert crossed.any()
+    assert out_c[0, 2, 2] > transported[2, 2] * 1.01  # material between z_pca and the first hit
