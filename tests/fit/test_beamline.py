@@ -10,8 +10,8 @@ from pkf.geometry import load_geometry
 def test_point_of_closest_approach_and_material_noise():
     geometry = load_geometry("lhcb-like")
     ext = straight_line_extrapolator(geometry)
-    # a straight track through (1, -2, 30) with slopes (0.05, 0.02), state given at z = 100
-    z0, tx, ty = 100.0, 0.05, 0.02
+    # a straight track through (1, -2, 30) with slopes (0.1, 0.05), state given at z = 275
+    z0, tx, ty = 275.0, 0.1, 0.05
     x0, y0 = 1.0 + tx * (z0 - 30.0), -2.0 + ty * (z0 - 30.0)
     state = np.array([[x0, y0, tx, ty, 1 / 5000.0]])
     cov = np.diag([1e-4, 1e-4, 1e-8, 1e-8, 1e-12])[None]
