@@ -27,6 +27,12 @@ from pkf.seeding.triplet_fit import (
     triplet_fit_ms,
     triplet_geometry,
 )
+from pkf.seeding.velo_search import (
+    VeloSearchOptions,
+    VeloTracks,
+    find_velo_tracks,
+    find_velo_tracks_in_hits,
+)
 
 __all__ = [
     "COMBINE_CURVATURE",
@@ -46,9 +52,13 @@ __all__ = [
     "STATUS_ROOT_FALLBACK",
     "STATUS_WEAK_FIELD",
     "TripletFit",
+    "VeloSearchOptions",
+    "VeloTracks",
     "combine_triplet_chain",
     "combine_triplets",
     "fit_triplets",
+    "find_velo_tracks",
+    "find_velo_tracks_in_hits",
     "fit_triplets_kernel",
     "triplet_fit_curvature",
     "triplet_fit_hit_errors",

@@ -1,0 +1,1237 @@
+"""Forward extension of VELO tracks through the UT and the magnet into the SciFi (DESIGN §7.4).
+
+The triplet paper's "extrapolation technique": a VELO track (event, straight-line state
+(x, y, tx, ty) at a VELO layer, q/p unknown) is extended with the *parametrized*
+extrapolations of DESIGN §9.2 (no field map): VELO→UT (paper eqs. 15–20), UT and SciFi
+layer steps (eq. 14), the UT→SciFi table (eqs. 21–23) and the parametrized noise
+(eq. 11). Every search step is a linearised Kalman filter (KF) around a *reference
+trajectory* (the parametrized transport of the VELO state at a q/p hypothesis, with its
+Jacobians and its noise evaluated at that q/p), so windows scale with the q/p
+uncertainty and the multiple scattering of the hypothesis, and candidates are ranked by
+a χ² that includes the VELO–UT–SciFi consistency.
+
+Algorithm, per VELO track (all in one compiled kernel, no Python loop per track or hit)
+---------------------------------------------------------------------------------------
+0. **Prior.** The VELO state with covariance diag(σx², σy², σtx², σty², σq²): σx² =
+   a² + (b·q)², σtx² = a′² + (b′·q)² (hit resolution ⊕ scattering in the VELO, measured
+   on lhcb-like minimum bias: `velo_*` options) and a flat-ish q/p prior.
+1. **UT search.** Reference trajectory at q/p = 0 (in the UT the field is weak: the
+   predicted u on each UT layer is linear in q/p to ≲ 20 µm up to 1.5 GeV), noise at
+   1/p_min. A depth-first combinatorial KF over the 4 UT layers: every hit in the
+   window of the first layer(s) opens a branch (the window covers |q/p| ≤ 1/p_min: the
+   q/p prior has σ = ``ut_q_prior``/p_min), later layers keep the ``max_branch`` best
+   hits by Δχ², one layer may be missing (≥ ``ut_min_hits`` = 3 of 4), and the best
+   leaf (most hits, then χ²) is the UT candidate; its χ² must pass ``ut_pvalue``. It is
+   re-fitted around its own q/p with the noise at that q/p: the q/p estimate from the
+   VELO→UT kink and the UT slope, its variance and the fitted UT state.
+2. **q/p scan in the SciFi (Hough in q/p).** The q/p range is the UT estimate ±
+   ``hough_sigmas``·σ (clipped to |q/p| ≤ 1/p_min) or, without UT candidate, all of
+   |q/p| ≤ 1/p_min. The state at the last UT layer *given q/p* (the conditional mean of
+   the fitted UT state, or the VELO prior carried through the UT) is transported to the
+   six SciFi x layers at q/p nodes spaced ``node_spacing``/p_table (0.5 → 9 nodes for
+   the full range); x(q/p) on each layer is a cubic Hermite interpolation of the nodes
+   (values and d/dq from the Jacobians; ≤ 0.3 mm error). Every x-layer hit inside the
+   covered x range gets its *implied q/p* (Newton inversion of the cubic). Hits of one
+   track agree on q/p up to the tolerance τ(q) = ``hough_tol_abs`` + ``hough_tol_rel``·|q|
+   (the slope uncertainty at the UT and the scattering in the SciFi); the implied
+   values are histogrammed in bins of one tolerance (t(q) = sign q·ln(1 + τ₁|q|/τ₀)/τ₁),
+   linear in the number of hits, and windows of two bins with hits on ≥
+   ``hough_min_x_layers`` x layers (≥ 1 per station) are the clusters, best first.
+3. **SciFi search.** For each of the best ``max_clusters`` clusters: a reference
+   trajectory at the cluster's q/p from the VELO state through the UT and all SciFi
+   layers (noise at that q/p); a KF from the VELO prior through the UT candidate's hits
+   (Δχ²-checked), a pseudo-measurement of x at the first SciFi x layer (the cluster's
+   position, σ = the cluster tolerance; it only narrows the search windows and is not
+   counted in χ²), then a depth-first combinatorial KF over the 12 SciFi layers:
+   windows of ``window_sigmas``·√(H·P·Hᵀ + σ²) (they scale with the q/p uncertainty),
+   stereo hits resolved by the filter itself (a u/v hit constrains y through the
+   stereo angle; wrong choices die on the next layers' Δχ²), the ``max_branch`` best
+   hits per layer, a missing-hit skip only where no hit is compatible, at most
+   12 − ``scifi_min_hits`` skips, and in every station ≥ 1 x and ≥ 1 stereo hit (the
+   long-reconstructible definition, DESIGN §10). Best candidate: most SciFi hits, then
+   lowest χ².
+4. **Fallback.** If the UT-seeded SciFi search finds nothing, the scan is repeated
+   without the UT candidate over the full q/p range (``no_ut_fallback``): a wrong UT
+   combination does not lose the track.
+5. **UT confirmation and final fit.** With the SciFi q/p (and its variance) as prior,
+   the UT hits are searched again in windows now set by the scattering at that
+   momentum (``ut_confirm_min_hits``), then a final KF (reference at the fitted q/p)
+   over the chosen UT and SciFi hits, dropping hits with Δχ² above window_sigmas²,
+   gives χ², ndf = n_hits − 1, q/p and its variance; the track is kept if its χ²
+   p-value is ≥ ``pvalue``.
+
+Below the UT→SciFi table's p_min (3 GeV) the search uses the table's quadratic
+continuation (`pkf.seeding.forward_steps`); such tracks are found (their hits are as good
+as any), their q/p is biased by ≲ 1–2 % and ``below_table_p_min`` flags them: the
+parametrized Kalman fit returns status 4 there.
+
+Cost: per track a few reference trajectories (≈ 16 parametrized steps each), one q/p scan
+(nodes + the x-layer hits in the covered range, each looked up by binary search in hits
+sorted by u per (event, layer)), and KF branches limited by the windows: linear in the
+number of tracks and ~linear in the hit density.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numba as nb
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from pkf.errors import InputError
+from pkf.geometry.detector import SUBDETECTORS, Geometry
+from pkf.seeding.forward_steps import (
+    TRANSPORT_BELOW_P_MIN,
+    TRANSPORT_FAILED,
+    new_table_buffers,
+    scan_states,
+    table_localize,
+    transport,
+)
+
+__all__ = [
+    "ForwardOptions",
+    "ForwardTracks",
+    "STATUS_INVALID",
+    "STATUS_NAMES",
+    "STATUS_NOT_FOUND",
+    "STATUS_NO_SCIFI",
+    "STATUS_NO_UT",
+    "STATUS_OK",
+    "extend_velo_tracks",
+]
+
+#: Track status codes of `ForwardTracks.status`.
+STATUS_OK = 0  # UT and SciFi hits added
+STATUS_NO_UT = 1  # SciFi hits added, no UT hits (q/p from VELO + SciFi)
+STATUS_NO_SCIFI = 2  # no SciFi extension; the UT candidate (if any) is kept ("upstream track")
+STATUS_NOT_FOUND = 3  # nothing found
+STATUS_INVALID = 4  # the VELO state could not be extrapolated (NaN, no VELO layer, |slope| too large)
+STATUS_NAMES = ("ok", "no UT hits", "no SciFi extension", "not found", "invalid VELO state")
+
+_MAX_CHILDREN = 17  # per search depth (branches + the skip)
+_MODE_SEARCH = 0
+_MODE_FIXED = 1
+_MODE_OFF = 2
+
+# Per-kernel integer/float option vectors (see ForwardOptions.vectors)
+(_O_QMAX, _O_VSX, _O_VMSX, _O_VSTX, _O_VMSTX, _O_UT_QPRIOR, _O_WEAK_QPRIOR, _O_UT_NSIG,
+ _O_HOUGH_NSIG, _O_TAU0, _O_TAU1, _O_NODE_DW, _O_NSIG, _O_PM_FLOOR, _O_PM_SCALE, _O_QTABLE,
+ _O_CONFIRM_NSIG) = range(17)
+_N_FOPT = 17
+(_I_UT_MIN, _I_UT_FIRST, _I_BRANCH, _I_MIN_X, _I_MAX_CLUSTERS, _I_SF_MIN, _I_FALLBACK,
+ _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X) = range(11)
+_N_IOPT = 11
+
+
+@dataclass(frozen=True)
+class ForwardOptions:
+    """Options of `extend_velo_tracks` (defaults in brackets). Units: MeV, mm.
+
+    p_min [1500]              lowest momentum searched: |q/p| ≤ 1/p_min
+    velo_sigma_x [0.01]       VELO state position error at high momentum [mm]
+    velo_ms_x [130]           + its scattering part: σx² = a² + (velo_ms_x·q/p)² [mm·MeV]
+    velo_sigma_tx [3e-5]      VELO slope error at high momentum
+    velo_ms_tx [2.2]          + scattering part: σtx² = a² + (velo_ms_tx·q/p)² [MeV]
+    ut_q_prior [0.5]          σ of the q/p prior of the UT search, in units of 1/p_min
+    ut_window_sigmas [4]      UT search windows [σ]
+    ut_min_hits [3]           UT hits (of 4) for a UT candidate
+    ut_first_branches [16]    branches per layer until the first UT hit is attached
+    ut_pvalue [1e-3]          p-value cut of the UT candidate's χ²
+    hough_sigmas [4]          q/p scan range around the UT estimate [σ]
+    hough_tol_abs [1e-7]      q/p scan tolerance τ₀ [1/MeV]
+    hough_tol_rel [3e-3]      + τ₁·|q/p|
+    hough_min_x_layers [4]    x layers (of 6) in a q/p cluster
+    node_spacing [0.5]        q/p node spacing of the scan in units of 1/p_table (3 GeV)
+    max_clusters [4]          q/p clusters followed into the SciFi per search
+    window_sigmas [4]         SciFi search windows and Δχ² cut [σ]
+    max_branch [2]            hits kept per layer and branch (best Δχ²)
+    scifi_min_hits [9]        SciFi hits (of 12)
+    station_x_and_stereo [True] ≥ 1 x and ≥ 1 stereo hit in each SciFi station
+    pseudo_floor [0.5]        floor of the cluster pseudo-measurement σ [mm]
+    pseudo_scale [2]          its σ in units of the cluster tolerance
+    pvalue [1e-6]             p-value cut on the final χ² (ndf = hits − 1)
+    no_ut_fallback [True]     rescan without the UT candidate when it leads nowhere
+    ut_confirm_min_hits [2]   UT hits re-collected with the SciFi q/p (0: keep the search's)
+    confirm_window_sigmas [3] UT confirmation windows [σ]
+    quadratic_continuation [True] continue the UT→SciFi table quadratically below p_min
+    max_nodes [4000]          visited search nodes per search (a safety cap)
+    """
+
+    p_min: float = 1500.0
+    velo_sigma_x: float = 0.01
+    velo_ms_x: float = 130.0
+    velo_sigma_tx: float = 3e-5
+    velo_ms_tx: float = 2.2
+    ut_q_prior: float = 0.5
+    ut_window_sigmas: float = 4.0
+    ut_min_hits: int = 3
+    ut_first_branches: int = 16
+    ut_pvalue: float = 1e-3
+    hough_sigmas: float = 4.0
+    hough_tol_abs: float = 1e-7
+    hough_tol_rel: float = 3e-3
+    hough_min_x_layers: int = 4
+    node_spacing: float = 0.5
+    max_clusters: int = 4
+    window_sigmas: float = 4.0
+    max_branch: int = 2
+    scifi_min_hits: int = 9
+    station_x_and_stereo: bool = True
+    pseudo_floor: float = 0.5
+    pseudo_scale: float = 2.0
+    pvalue: float = 1e-6
+    no_ut_fallback: bool = True
+    ut_confirm_min_hits: int = 2
+    confirm_window_sigmas: float = 3.0
+    quadratic_continuation: bool = True
+    max_nodes: int = 4000
+
+    def __post_init__(self):
+        checks = (
+            (self.p_min > 0, "p_min must be > 0 MeV"),
+            (self.ut_q_prior > 0, "ut_q_prior must be > 0"),
+            (self.ut_window_sigmas > 0 and self.window_sigmas > 0 and self.confirm_window_sigmas > 0,
+             "window sigmas must be > 0"),
+            (1 <= self.ut_min_hits <= 4, "ut_min_hits must be in 1..4"),
+            (0.0 < self.ut_pvalue < 1.0 and 0.0 <= self.pvalue < 1.0, "p-values must be in (0, 1)"),
+            (self.hough_tol_abs > 0 and self.hough_tol_rel >= 0, "hough tolerances must be > 0"),
+            (1 <= self.hough_min_x_layers, "hough_min_x_layers must be ≥ 1"),
+            (self.node_spacing > 0, "node_spacing must be > 0"),
+            (self.max_clusters >= 1, "max_clusters must be ≥ 1"),
+            (1 <= self.max_branch <= _MAX_CHILDREN - 1 and 1 <= self.ut_first_branches <= _MAX_CHILDREN - 1,
+             f"branches must be in 1..{_MAX_CHILDREN - 1}"),
+            (self.scifi_min_hits >= 1, "scifi_min_hits must be ≥ 1"),
+            (self.ut_confirm_min_hits >= 0, "ut_confirm_min_hits must be ≥ 0"),
+            (self.max_nodes >= 16, "max_nodes must be ≥ 16"),
+        )
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+    def vectors(self, p_table: float) -> tuple[np.ndarray, np.ndarray]:
+        f = np.zeros(_N_FOPT)
+        f[_O_QMAX] = 1.0 / self.p_min
+        f[_O_VSX] = self.velo_sigma_x
+        f[_O_VMSX] = self.velo_ms_x
+        f[_O_VSTX] = self.velo_sigma_tx
+        f[_O_VMSTX] = self.velo_ms_tx
+        f[_O_UT_QPRIOR] = self.ut_q_prior / self.p_min
+        f[_O_WEAK_QPRIOR] = 10.0 / self.p_min
+        f[_O_UT_NSIG] = self.ut_window_sigmas
+        f[_O_HOUGH_NSIG] = self.hough_sigmas
+        f[_O_TAU0] = self.hough_tol_abs
+        f[_O_TAU1] = self.hough_tol_rel
+        f[_O_NODE_DW] = self.node_spacing / p_table
+        f[_O_NSIG] = self.window_sigmas
+        f[_O_PM_FLOOR] = self.pseudo_floor
+        f[_O_PM_SCALE] = self.pseudo_scale
+        f[_O_QTABLE] = 1.0 / p_table
+        f[_O_CONFIRM_NSIG] = self.confirm_window_sigmas
+        i = np.zeros(_N_IOPT, dtype=np.int64)
+        i[_I_UT_MIN] = self.ut_min_hits
+        i[_I_UT_FIRST] = self.ut_first_branches
+        i[_I_BRANCH] = self.max_branch
+        i[_I_MIN_X] = self.hough_min_x_layers
+        i[_I_MAX_CLUSTERS] = self.max_clusters
+        i[_I_SF_MIN] = self.scifi_min_hits
+        i[_I_FALLBACK] = int(self.no_ut_fallback)
+        i[_I_CONFIRM_MIN] = self.ut_confirm_min_hits
+        i[_I_MAX_NODES] = self.max_nodes
+        i[_I_QUAD] = int(self.quadratic_continuation)
+        i[_I_STATION_X] = int(self.station_x_and_stereo)
+        return f, i
+
+
+@dataclass
+class ForwardTracks:
+    """Result of `extend_velo_tracks`, one entry per input VELO track (same order).
+
+    hit_rows[offsets[t]:offsets[t+1]]: rows of the input hit arrays added to track t
+    (UT then SciFi, sorted by z); n_ut, n_scifi: how many of each. qop [1/MeV] and
+    qop_var: the q/p estimate (at production, DESIGN §9.2) and its variance (NaN if
+    none); chi2/ndf of the extension fit (ndf = hits − 1, the VELO state as prior);
+    status: STATUS_* (STATUS_NAMES); below_table_p_min: |q/p| > 1/p_min of the
+    UT→SciFi table (the parametrized fit returns status 4 there).
+    """
+
+    offsets: np.ndarray
+    hit_rows: np.ndarray
+    n_ut: np.ndarray
+    n_scifi: np.ndarray
+    qop: np.ndarray
+    qop_var: np.ndarray
+    chi2: np.ndarray
+    ndf: np.ndarray
+    status: np.ndarray
+    below_table_p_min: np.ndarray
+
+    @property
+    def n_tracks(self) -> int:
+        return int(self.status.size)
+
+    @property
+    def n_hits(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+    @property
+    def track_of_hit(self) -> np.ndarray:
+        return np.repeat(np.arange(self.n_tracks, dtype=np.int64), self.n_hits)
+
+    @property
+    def found(self) -> np.ndarray:
+        """Tracks extended into the SciFi (status ok or no UT)."""
+        return (self.status == STATUS_OK) | (self.status == STATUS_NO_UT)
+
+
+# ------------------------------------------------------------------------------------
+# Kalman-filter pieces (deviation δ from a reference trajectory; H = [cos α, sin α, 0, 0, 0])
+# ------------------------------------------------------------------------------------
+
+@nb.njit(cache=True, inline="always")
+def _predict(F, Q, x, P, x_out, P_out, tmp):
+    """x_out = F·x, P_out = F·P·Fᵀ + Q."""
+    for i in range(5):
+        acc = 0.0
+        for k in range(5):
+            acc += F[i, k] * x[k]
+        x_out[i] = acc
+    for i in range(5):
+        for k in range(5):
+            acc = 0.0
+            for m in range(5):
+                acc += F[i, m] * P[m, k]
+            tmp[i, k] = acc
+    for i in range(5):
+        for k in range(i, 5):
+            acc = Q[i, k]
+            for m in range(5):
+                acc += tmp[i, m] * F[k, m]
+            P_out[i, k] = acc
+            P_out[k, i] = acc
+
+
+@nb.njit(cache=True, inline="always")
+def _update(x, P, c, s, r, var, x_out, P_out, pht):
+    """Strip update with residual r and residual variance var = H·P·Hᵀ + σ²."""
+    for i in range(5):
+        pht[i] = c * P[i, 0] + s * P[i, 1]
+    for i in range(5):
+        k = pht[i] / var
+        x_out[i] = x[i] + k * r
+        for m in range(5):
+            P_out[i, m] = P[i, m] - k * pht[m]
+
+
+@nb.njit(cache=True, inline="always")
+def _velo_prior(opt, q_noise, sigma_q, P):
+    for i in range(5):
+        for k in range(5):
+            P[i, k] = 0.0
+    vx = opt[_O_VSX] ** 2 + (opt[_O_VMSX] * q_noise) ** 2
+    vt = opt[_O_VSTX] ** 2 + (opt[_O_VMSTX] * q_noise) ** 2
+    P[0, 0] = vx
+    P[1, 1] = vx
+    P[2, 2] = vt
+    P[3, 3] = vt
+    P[4, 4] = sigma_q * sigma_q
+
+
+@nb.njit(cache=True)
+def _reference(ext, poly, ref, quad, a, f_layer, j_end, s_v, q, q_noise, ref_s, ref_F, ref_Q, work):
+    """Reference trajectory from VELO layer a through forward layers 0 … j_end−1 at
+    q/p = q; noise at q_noise. Returns the worst transport status."""
+    status = 0
+    s_in = work[0, 0]
+    for i in range(4):
+        s_in[i] = s_v[i]
+    s_in[4] = q
+    cur = a
+    tw = work[1:]
+    for j in range(j_end):
+        st = transport(ext, poly, ref, quad, cur, f_layer[j], s_in, q_noise, ref_s[j], ref_F[j],
+                       ref_Q[j], tw)
+        if st == TRANSPORT_FAILED:
+            return st
+        if st > status:
+            status = st
+        for i in range(5):
+            s_in[i] = ref_s[j, i]
+        cur = f_layer[j]
+    return status
+
+
+@nb.njit(cache=True)
+def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, pm_value, pm_var,
+            nsig, first_branches, max_branch, max_skip, min_hits, skip_first, need, chi2_prune,
+            max_nodes, ws, best_path, best_x, best_P):
+    """Depth-first combinatorial Kalman filter over forward layers j0 … j1−1.
+
+    mode[j]: _MODE_SEARCH (hits in the window, up to first_branches / max_branch by
+    Δχ²), _MODE_FIXED (the hit fixed[j] if Δχ² < nsig², sorted-hit index, −1 none),
+    _MODE_OFF (transport only). Search layers without an accepted hit are skips (at
+    most max_skip); before the first search hit is attached the skip branch is always
+    tried if skip_first. The pseudo-measurement (x = pm_value, variance pm_var) is
+    applied at depth pm_depth (−1: none) before the hits, outside χ².
+    f_bit[j]: requirement bit of layer j (0: none); f_group_end[j]: the bits needed by
+    the group ending at j must be present (f_need_end[j] mask). need: bits required at
+    the end. Returns (n_search_hits, n_fixed_hits, chi2) of the best leaf (most search
+    hits, then lowest χ²) with best_path[j] (sorted-hit index or −1) and the deviation
+    state/covariance at layer j1−1 in best_x/best_P; n = −1 if none.
+    """
+    nd = j1 - j0
+    (pred_x, post_x, pred_P, post_P, tmp, pht, upred, sbase, post_chi, ch_chi, n_ch, it, post_n,
+     post_nf, post_skip, post_mask, post_att, path, ch_hit) = ws
+    best_n = -1
+    best_nf = 0
+    best_chi = 1e300
+    nodes = 0
+    d = 0
+    expand = True
+    while d >= 0:
+        if expand:
+            expand = False
+            j = j0 + d
+            if d == 0:
+                _predict(ref_F[j], ref_Q[j], x0, P0, pred_x[d], pred_P[d], tmp)
+                prev_chi = 0.0
+                prev_n = 0
+                prev_nf = 0
+                prev_att = 0
+            else:
+                _predict(ref_F[j], ref_Q[j], post_x[d - 1], post_P[d - 1], pred_x[d], pred_P[d], tmp)
+                prev_chi = post_chi[d - 1]
+                prev_n = post_n[d - 1]
+                prev_nf = post_nf[d - 1]
+                prev_att = post_att[d - 1]
+            nodes += 1
+            c = f_cos[j]
+            s = f_sin[j]
+            if d == pm_depth:
+                for i in range(5):
+                    pht[i] = pred_P[d, i, 0]
+                var = pred_P[d, 0, 0] + pm_var
+                r = pm_value - (ref_s[j, 0] + pred_x[d, 0])
+                for i in range(5):
+                    kk = pht[i] / var
+                    pred_x[d, i] += kk * r
+                for i in range(5):
+                    for m in range(5):
+                        post_P[d, i, m] = pred_P[d, i, m] - pht[i] * pht[m] / var
+                for i in range(5):
+                    for m in range(5):
+                        pred_P[d, i, m] = post_P[d, i, m]
+            up = c * (ref_s[j, 0] + pred_x[d, 0]) + s * (ref_s[j, 1] + pred_x[d, 1])
+            sb = c * c * pred_P[d, 0, 0] + 2.0 * c * s * pred_P[d, 0, 1] + s * s * pred_P[d, 1, 1]
+            upred[d] = up
+            sbase[d] = sb
+            nc = 0
+            md = mode[j]
+            lo = lay_off_e[j]
+            hi = lay_off_e[j + 1]
+            if md == _MODE_FIXED:
+                h = fixed[j]
+                if h >= 0:
+                    r = hu[h] - up
+                    c2 = r * r / (sb + hsig[h] * hsig[h])
+                    if c2 < nsig * nsig:
+                        ch_hit[d, 0] = h
+                        ch_chi[d, 0] = c2
+                        nc = 1
+                if nc == 0:
+                    ch_hit[d, 0] = -1
+                    ch_chi[d, 0] = 0.0
+                    nc = 1
+            elif md == _MODE_SEARCH:
+                kmax = first_branches if prev_att == 0 else max_branch
+                hw = nsig * math.sqrt(sb + f_sig[j] * f_sig[j])
+                # first hit with u >= up − hw (bisection)
+                a_ = lo
+                b_ = hi
+                while a_ < b_:
+                    mid = (a_ + b_) >> 1
+                    if hu[mid] < up - hw:
+                        a_ = mid + 1
+                    else:
+                        b_ = mid
+                h = a_
+                while h < hi and hu[h] <= up + hw:
+                    r = hu[h] - up
+                    c2 = r * r / (sb + hsig[h] * hsig[h])
+                    if c2 < nsig * nsig:
+                        # insertion into the sorted top-kmax list
+                        if nc < kmax:
+                            pos = nc
+                            nc += 1
+                        elif c2 < ch_chi[d, nc - 1]:
+                            pos = nc - 1
+                        else:
+                            pos = -1
+                        if pos >= 0:
+                            while pos > 0 and ch_chi[d, pos - 1] > c2:
+                                ch_chi[d, pos] = ch_chi[d, pos - 1]
+                                ch_hit[d, pos] = ch_hit[d, pos - 1]
+                                pos -= 1
+                            ch_chi[d, pos] = c2
+                            ch_hit[d, pos] = h
+                    h += 1
+                skips_so_far = 0 if d == 0 else post_skip[d - 1]
+                if (nc == 0 or (skip_first and prev_att == 0)) and skips_so_far < max_skip:
+                    ch_hit[d, nc] = -2  # skip
+                    ch_chi[d, nc] = 0.0
+                    nc += 1
+            else:
+                ch_hit[d, 0] = -1
+                ch_chi[d, 0] = 0.0
+                nc = 1
+            n_ch[d] = nc
+            it[d] = 0
+            if nodes > max_nodes:
+                break
+        if it[d] >= n_ch[d]:
+            d -= 1
+            continue
+        ci = it[d]
+        it[d] += 1
+        j = j0 + d
+        h = ch_hit[d, ci]
+        if d == 0:
+            prev_chi = 0.0
+            prev_n = 0
+            prev_nf = 0
+            prev_skip = 0
+            prev_mask = 0
+            prev_att = 0
+        else:
+            prev_chi = post_chi[d - 1]
+            prev_n = post_n[d - 1]
+            prev_nf = post_nf[d - 1]
+            prev_skip = post_skip[d - 1]
+            prev_mask = post_mask[d - 1]
+            prev_att = post_att[d - 1]
+        if h >= 0:
+            c = f_cos[j]
+            s = f_sin[j]
+            var = sbase[d] + hsig[h] * hsig[h]
+            r = hu[h] - upred[d]
+            _update(pred_x[d], pred_P[d], c, s, r, var, post_x[d], post_P[d], pht)
+            post_chi[d] = prev_chi + r * r / var
+            if mode[j] == _MODE_SEARCH:
+                post_n[d] = prev_n + 1
+                post_nf[d] = prev_nf
+                post_mask[d] = prev_mask | f_bit[j]
+                post_att[d] = 1
+            else:
+                post_n[d] = prev_n
+                post_nf[d] = prev_nf + 1
+                post_mask[d] = prev_mask
+                post_att[d] = prev_att
+            post_skip[d] = prev_skip
+        else:
+            for i in range(5):
+                post_x[d, i] = pred_x[d, i]
+                for m in range(5):
+                    post_P[d, i, m] = pred_P[d, i, m]
+            post_chi[d] = prev_chi
+            post_n[d] = prev_n
+            post_nf[d] = prev_nf
+            post_mask[d] = prev_mask
+            post_att[d] = prev_att
+            post_skip[d] = prev_skip + (1 if h == -2 else 0)
+        path[d] = h if h >= 0 else -1
+        # pruning
+        ntot = post_n[d] + post_nf[d]
+        if post_chi[d] > chi2_prune[min(ntot, chi2_prune.shape[0] - 1)]:
+            continue
+        if f_group_end[j] and (post_mask[d] & f_need_end[j]) != f_need_end[j]:
+            continue
+        if d == nd - 1:
+            if post_n[d] >= min_hits and (post_mask[d] & need) == need:
+                better = post_n[d] > best_n or (post_n[d] == best_n and post_chi[d] < best_chi)
+                if better:
+                    best_n = post_n[d]
+                    best_nf = post_nf[d]
+                    best_chi = post_chi[d]
+                    for k in range(nd):
+                        best_path[j0 + k] = path[k]
+                    for i in range(5):
+                        best_x[i] = post_x[d, i]
+                        for m in range(5):
+                            best_P[i, m] = post_P[d, i, m]
+            continue
+        d += 1
+        expand = True
+    return best_n, best_nf, best_chi
+
+
+@nb.njit(cache=True, inline="always")
+def _t_of_q(q, tau0, tau1):
+    """Hough coordinate in units of the local tolerance τ(q) = τ0 + τ1·|q|."""
+    if tau1 <= 0.0:
+        return q / tau0
+    t = math.log1p(tau1 * abs(q) / tau0) / tau1
+    return t if q >= 0.0 else -t
+
+
+@nb.njit(cache=True, inline="always")
+def _hermite(x0, x1, d0, d1, h, t):
+    t2 = t * t
+    t3 = t2 * t
+    v = (2 * t3 - 3 * t2 + 1) * x0 + (t3 - 2 * t2 + t) * h * d0 + (-2 * t3 + 3 * t2) * x1 + (t3 - t2) * h * d1
+    dv = ((6 * t2 - 6 * t) * x0 + (3 * t2 - 4 * t + 1) * h * d0 + (-6 * t2 + 6 * t) * x1
+          + (3 * t2 - 2 * t) * h * d1) / h
+    return v, dv
+
+
+@nb.njit(cache=True)
+def _node_value(qn, xs, dxs, li, q):
+    """Hermite interpolation of x(q) on layer li at q (linear beyond the ends)."""
+    k_last = qn.shape[0] - 1
+    if q <= qn[0]:
+        return xs[0, li] + dxs[0, li] * (q - qn[0]), dxs[0, li]
+    if q >= qn[k_last]:
+        return xs[k_last, li] + dxs[k_last, li] * (q - qn[k_last]), dxs[k_last, li]
+    k = 0
+    while k < k_last - 1 and qn[k + 1] <= q:
+        k += 1
+    h = qn[k + 1] - qn[k]
+    return _hermite(xs[k, li], xs[k + 1, li], dxs[k, li], dxs[k + 1, li], h, (q - qn[k]) / h)
+
+
+@nb.njit(cache=True)
+def _implied_q(qn, xs, dxs, li, u, increasing):
+    """Invert x(q) = u on layer li (monotone): binary search of the node interval, then
+    Newton on its cubic; linear beyond the end nodes."""
+    k_last = qn.shape[0] - 1
+    first = xs[0, li]
+    last = xs[k_last, li]
+    if (u <= first) == increasing:
+        dd = dxs[0, li]
+        return qn[0] + (u - first) / dd if dd != 0.0 else qn[0]
+    if (u >= last) == increasing:
+        dd = dxs[k_last, li]
+        return qn[k_last] + (u - last) / dd if dd != 0.0 else qn[k_last]
+    a = 0
+    b = k_last
+    while b - a > 1:
+        mid = (a + b) >> 1
+        if (xs[mid, li] <= u) == increasing:
+            a = mid
+        else:
+            b = mid
+    h = qn[b] - qn[a]
+    x0 = xs[a, li]
+    x1 = xs[b, li]
+    t = (u - x0) / (x1 - x0) if x1 != x0 else 0.5
+    for _ in range(3):
+        v, dv = _hermite(x0, x1, dxs[a, li], dxs[b, li], h, t)
+        if dv == 0.0:
+            break
+        t -= (v - u) / (dv * h)
+        if t < 0.0:
+            t = 0.0
+        elif t > 1.0:
+            t = 1.0
+    return qn[a] + t * h
+
+
+@nb.njit(cache=True)
+def _popcount(m):
+    n = 0
+    while m:
+        m &= m - 1
+        n += 1
+    return n
+
+
+@nb.njit(cache=True)
+def _extend_kernel(ext, poly, tref, f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end,
+                   sf_need, x_layers, x_fwd, x_station_bit, x_station_need, n_ut,
+                   t_ev, t_state, t_layer, lay_off, hu, hsig, opt, iopt, ut_prune, sf_prune,
+                   final_cut, max_entries, max_bins,
+                   out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf):
+    n_fwd = f_layer.shape[0]
+    n_x = x_layers.shape[0]
+    quad = iopt[_I_QUAD] != 0
+    qmax = opt[_O_QMAX]
+    tau0 = opt[_O_TAU0]
+    tau1 = opt[_O_TAU1]
+    # workspaces
+    ref_s = np.zeros((n_fwd, 5))
+    ref_F = np.zeros((n_fwd, 5, 5))
+    ref_Q = np.zeros((n_fwd, 5, 5))
+    work = np.zeros((6, 5, 5))
+    ws = (np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5)),
+          np.zeros((5, 5)), np.zeros(5), np.zeros(n_fwd), np.zeros(n_fwd), np.zeros(n_fwd),
+          np.zeros((n_fwd, _MAX_CHILDREN)), np.zeros(n_fwd, dtype=np.int64),
+          np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
+          np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
+          np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
+          np.zeros(n_fwd, dtype=np.int64), np.zeros((n_fwd, _MAX_CHILDREN), dtype=np.int64))
+    path = np.full(n_fwd, -1, dtype=np.int64)
+    ut_path = np.full(n_fwd, -1, dtype=np.int64)
+    sf_path = np.full(n_fwd, -1, dtype=np.int64)
+    cand_path = np.full(n_fwd, -1, dtype=np.int64)
+    fixed = np.full(n_fwd, -1, dtype=np.int64)
+    mode = np.zeros(n_fwd, dtype=np.int64)
+    bx = np.zeros(5)
+    bP = np.zeros((5, 5))
+    ut_x = np.zeros(5)
+    ut_P = np.zeros((5, 5))
+    cx = np.zeros(5)
+    cP = np.zeros((5, 5))
+    x0 = np.zeros(5)
+    P0 = np.zeros((5, 5))
+    s_v = np.zeros(5)
+    s0 = np.zeros(5)
+    ds0 = np.zeros(5)
+    max_nodes_q = int(math.ceil(2.0 * qmax / opt[_O_NODE_DW])) + 2
+    qn = np.zeros(max_nodes_q)
+    xs = np.zeros((max_nodes_q, n_x))
+    dxs = np.zeros((max_nodes_q, n_x))
+    ys = np.zeros((max_nodes_q, n_x))
+    dys = np.zeros((max_nodes_q, n_x))
+    e_q = np.zeros(max_entries)
+    e_bin = np.zeros(max_entries, dtype=np.int64)
+    e_li = np.zeros(max_entries, dtype=np.int64)
+    e_order = np.zeros(max_entries, dtype=np.int64)
+    bin_count = np.zeros(max_bins + 1, dtype=np.int64)
+    bin_start = np.zeros(max_bins + 2, dtype=np.int64)
+    cl_bin = np.zeros(64, dtype=np.int64)
+    cl_score = np.zeros(64, dtype=np.int64)
+    n_sf_layers = n_fwd - n_ut
+    nsig = opt[_O_NSIG]
+    ut_nsig = opt[_O_UT_NSIG]
+    for t in range(t_ev.shape[0]):
+        e = t_ev[t]
+        a = t_layer[t]
+        loe = lay_off[e]
+        for i in range(4):
+            s_v[i] = t_state[t, i]
+        s_v[4] = 0.0
+        out_status[t] = STATUS_NOT_FOUND
+        out_q[t] = np.nan
+        out_qvar[t] = np.nan
+        out_chi2[t] = np.nan
+        out_ndf[t] = 0
+        out_nut[t] = 0
+        out_nsf[t] = 0
+        for j in range(n_fwd):
+            out_hits[t, j] = -1
+        ok_state = a >= 0
+        for i in range(4):
+            if not np.isfinite(s_v[i]):
+                ok_state = False
+        if not ok_state:
+            out_status[t] = STATUS_INVALID
+            continue
+        # ---------------- 1. UT search around q/p = 0 ----------------
+        st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q, work)
+        if st == TRANSPORT_FAILED:
+            out_status[t] = STATUS_INVALID
+            continue
+        for j in range(n_fwd):
+            mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
+            ut_path[j] = -1
+        for i in range(5):
+            x0[i] = 0.0
+        _velo_prior(opt, qmax, opt[_O_UT_QPRIOR], P0)
+        nb_ut, _, chi_ut = _search(
+            0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+            ut_nsig, iopt[_I_UT_FIRST], iopt[_I_BRANCH], n_ut - iopt[_I_UT_MIN], iopt[_I_UT_MIN],
+            True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, bx, bP)
+        ut_found = nb_ut >= iopt[_I_UT_MIN]
+        q_ut = 0.0
+        var_ut = 0.0
+        if ut_found:
+            for j in range(n_ut):
+                ut_path[j] = path[j]
+            q_ut = ref_s[n_ut - 1, 4] + bx[4]
+            var_ut = bP[4, 4]
+            # re-fit around the estimate, noise at that q/p
+            qn_ = math.sqrt(q_ut * q_ut + var_ut)
+            st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, s_v, q_ut, min(qn_, qmax), ref_s,
+                            ref_F, ref_Q, work)
+            if st != TRANSPORT_FAILED:
+                for j in range(n_ut):
+                    mode[j] = _MODE_FIXED
+                    fixed[j] = ut_path[j]
+                x0[4] = -q_ut
+                _velo_prior(opt, min(qn_, qmax), opt[_O_WEAK_QPRIOR], P0)
+                nf_, nfx, chi_r = _search(
+                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+                    ut_nsig, 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, ut_x, ut_P)
+                if nfx >= iopt[_I_UT_MIN]:
+                    q_ut = ref_s[n_ut - 1, 4] + ut_x[4]
+                    var_ut = ut_P[4, 4]
+                    for i in range(5):
+                        s0[i] = ref_s[n_ut - 1, i] + ut_x[i]
+                        ds0[i] = ut_P[i, 4] / ut_P[4, 4]
+                else:
+                    ut_found = False
+            else:
+                ut_found = False
+        # ---------------- 2–4. SciFi: q/p scan, cluster follow-up, fallback ----------------
+        sf_best_n = -1
+        sf_best_chi = 1e300
+        sf_used_ut = False
+        q_best = 0.0
+        var_best = 0.0
+        cond_P = cP
+        for attempt in range(2):
+            use_ut = ut_found and attempt == 0
+            if attempt == 1 and (sf_best_n >= 0 or not ut_found or iopt[_I_FALLBACK] == 0):
+                break
+            if not use_ut:
+                # the VELO prior carried through the UT at q/p = 0 (no hits)
+                st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, s_v, 0.0, qmax, ref_s, ref_F,
+                                ref_Q, work)
+                for j in range(n_ut):
+                    mode[j] = _MODE_OFF
+                for i in range(5):
+                    x0[i] = 0.0
+                _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
+                nf_, nfx, chi_r = _search(
+                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+                    ut_nsig, 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP)
+                for i in range(5):
+                    s0[i] = ref_s[n_ut - 1, i] + cx[i]
+                    ds0[i] = cP[i, 4] / cP[4, 4]
+                cond_P = cP
+                q_lo = -qmax
+                q_hi = qmax
+            else:
+                cond_P = ut_P
+                width = opt[_O_HOUGH_NSIG] * math.sqrt(var_ut)
+                q_lo = max(q_ut - width, -qmax)
+                q_hi = min(q_ut + width, qmax)
+                if q_hi <= q_lo:
+                    continue
+            # localise the UT→SciFi table at the state at the last UT layer
+            table_localize(ext.uts_meta, ext.uts_coef, s0[0], s0[1], poly, tref)
+            # q/p nodes
+            n_nodes = int(math.ceil((q_hi - q_lo) / opt[_O_NODE_DW])) + 1
+            if n_nodes < 2:
+                n_nodes = 2
+            if n_nodes > max_nodes_q:
+                n_nodes = max_nodes_q
+            for k in range(n_nodes):
+                qn[k] = q_lo + (q_hi - q_lo) * k / (n_nodes - 1)
+            qv = qn[:n_nodes]
+            st = scan_states(ext, poly, tref, quad, f_layer[n_ut - 1], x_layers, s0, ds0, qv,
+                             xs, dxs, ys, dys, work)
+            if st == TRANSPORT_FAILED:
+                continue
+            # implied q/p of every x-layer hit in the covered range (± the conditional
+            # position uncertainty given q/p at the last UT layer, carried by a straight line)
+            t_lo = _t_of_q(q_lo, tau0, tau1)
+            n_bins = int(_t_of_q(q_hi, tau0, tau1) - t_lo) + 1
+            if n_bins > max_bins:
+                n_bins = max_bins
+            pc00 = cond_P[0, 0] - cond_P[0, 4] * cond_P[0, 4] / cond_P[4, 4]
+            pc02 = cond_P[0, 2] - cond_P[0, 4] * cond_P[2, 4] / cond_P[4, 4]
+            pc22 = cond_P[2, 2] - cond_P[2, 4] * cond_P[2, 4] / cond_P[4, 4]
+            n_e = 0
+            for li in range(n_x):
+                jf = x_fwd[li]
+                dzl = ext.layer_z[x_layers[li]] - ext.layer_z[f_layer[n_ut - 1]]
+                vl = pc00 + 2.0 * dzl * pc02 + dzl * dzl * pc22
+                margin = nsig * math.sqrt(max(vl, 0.0) + f_sig[jf] * f_sig[jf]) + 1.0
+                xmin = xs[0, li]
+                xmax = xs[0, li]
+                for k in range(1, n_nodes):
+                    xmin = min(xmin, xs[k, li])
+                    xmax = max(xmax, xs[k, li])
+                increasing = xs[n_nodes - 1, li] >= xs[0, li]
+                lo = loe[jf]
+                hi = loe[jf + 1]
+                a_ = lo
+                b_ = hi
+                while a_ < b_:
+                    mid = (a_ + b_) >> 1
+                    if hu[mid] < xmin - margin:
+                        a_ = mid + 1
+                    else:
+                        b_ = mid
+                h = a_
+                while h < hi and hu[h] <= xmax + margin and n_e < max_entries:
+                    q = _implied_q(qv, xs, dxs, li, hu[h], increasing)
+                    tb = math.floor(_t_of_q(q, tau0, tau1) - t_lo)
+                    if 0.0 <= tb < n_bins:
+                        e_q[n_e] = q
+                        e_bin[n_e] = int(tb)
+                        e_li[n_e] = li
+                        n_e += 1
+                    h += 1
+            # counting sort of the entries by bin (bin_start: n_bins + 1 boundaries)
+            for k in range(n_e):
+                bin_count[e_bin[k]] += 1
+            bin_start[0] = 0
+            for b in range(n_bins):
+                bin_start[b + 1] = bin_start[b] + bin_count[b]
+            for k in range(n_e):
+                bin_count[e_bin[k]] = 0
+            for k in range(n_e):
+                b = e_bin[k]
+                e_order[bin_start[b] + bin_count[b]] = k
+                bin_count[b] += 1
+            for k in range(n_e):
+                bin_count[e_bin[k]] = 0
+            # clusters: windows of two bins with enough x layers (≥ 1 per station)
+            n_cl = 0
+            k = 0
+            while k < n_e:
+                b = e_bin[e_order[k]]
+                end = bin_start[min(b + 2, n_bins)]
+                mask = 0
+                for kk in range(k, end):
+                    mask |= 1 << e_li[e_order[kk]]
+                npop = _popcount(mask)
+                ok = npop >= iopt[_I_MIN_X]
+                if ok and iopt[_I_STATION_X] != 0:
+                    smask = 0
+                    for li in range(n_x):
+                        if mask & (1 << li):
+                            smask |= x_station_bit[li]
+                    ok = smask == x_station_need
+                if ok:
+                    score = npop * 1000 - (end - k)
+                    if n_cl > 0 and b - cl_bin[n_cl - 1] < 2:  # overlaps the previous window
+                        if score > cl_score[n_cl - 1]:
+                            cl_bin[n_cl - 1] = b
+                            cl_score[n_cl - 1] = score
+                    elif n_cl < cl_bin.shape[0]:
+                        cl_bin[n_cl] = b
+                        cl_score[n_cl] = score
+                        n_cl += 1
+                k = bin_start[b + 1]  # first entry of the next occupied bin
+
+            # follow the best clusters
+            for rank in range(min(n_cl, iopt[_I_MAX_CLUSTERS])):
+                best = -1
+                for c_ in range(n_cl):
+                    if cl_score[c_] > -1 and (best < 0 or cl_score[c_] > cl_score[best]):
+                        best = c_
+                if best < 0:
+                    break
+                b = cl_bin[best]
+                cl_score[best] = -2
+                # cluster q/p: mean over layers of the entry nearest to the window centre
+                kb = bin_start[b]
+                ke = bin_start[min(b + 2, n_bins)]
+                qsum = 0.0
+                nq = 0
+                for li in range(n_x):
+                    bestd = 1e300
+                    bq = 0.0
+                    for kk in range(kb, ke):
+                        ent = e_order[kk]
+                        if e_li[ent] == li:
+                            dd = abs(_t_of_q(e_q[ent], tau0, tau1) - t_lo - (b + 1.0))
+                            if dd < bestd:
+                                bestd = dd
+                                bq = e_q[ent]
+                    if bestd < 1e300:
+                        qsum += bq
+                        nq += 1
+                q_c = qsum / nq
+                xpm, dxpm = _node_value(qv, xs, dxs, 0, q_c)
+                tol = (tau0 + tau1 * abs(q_c)) * abs(dxpm) * opt[_O_PM_SCALE]
+                pm_var = tol * tol + opt[_O_PM_FLOOR] ** 2
+                st = _reference(ext, poly, tref, quad, a, f_layer, n_fwd, s_v, q_c, abs(q_c), ref_s,
+                                ref_F, ref_Q, work)
+                if st == TRANSPORT_FAILED:
+                    continue
+                for j in range(n_fwd):
+                    if j < n_ut:
+                        if use_ut:
+                            mode[j] = _MODE_FIXED
+                            fixed[j] = ut_path[j]
+                        else:
+                            mode[j] = _MODE_OFF
+                    else:
+                        mode[j] = _MODE_SEARCH
+                for i in range(4):
+                    x0[i] = 0.0
+                x0[4] = -q_c
+                _velo_prior(opt, abs(q_c), opt[_O_WEAK_QPRIOR], P0)
+                pm_depth = x_fwd[0]
+                n_sf, n_fx, chi_c = _search(
+                    0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, xpm, pm_var,
+                    nsig, iopt[_I_BRANCH], iopt[_I_BRANCH], n_sf_layers - iopt[_I_SF_MIN],
+                    iopt[_I_SF_MIN], False, sf_need, sf_prune, iopt[_I_MAX_NODES], ws, cand_path, bx, bP)
+
+                if n_sf < 0:
+                    continue
+                if n_sf > sf_best_n or (n_sf == sf_best_n and chi_c < sf_best_chi):
+                    sf_best_n = n_sf
+                    sf_best_chi = chi_c
+                    sf_used_ut = use_ut
+                    for j in range(n_fwd):
+                        sf_path[j] = cand_path[j]
+                    q_best = ref_s[n_fwd - 1, 4] + bx[4]
+                    var_best = bP[4, 4]
+        final_ok = False
+        if sf_best_n >= 0:
+            final_ok = _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_best,
+                                 sf_path, ut_path, sf_used_ut, mode, fixed,
+                                 loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end,
+                                 ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune, final_cut,
+                                 ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar, out_chi2,
+                                 out_ndf, out_status, out_nut, out_nsf)
+        if not final_ok and ut_found:
+            out_status[t] = STATUS_NO_SCIFI
+            out_q[t] = q_ut
+            out_qvar[t] = var_ut
+            n_h = 0
+            for j in range(n_fwd):
+                out_hits[t, j] = -1
+            for j in range(n_ut):
+                if ut_path[j] >= 0:
+                    out_hits[t, j] = ut_path[j]
+                    n_h += 1
+            out_nut[t] = n_h
+
+
+@nb.njit(cache=True)
+def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_best, sf_path,
+              ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit,
+              f_group_end, f_need_end, ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune,
+              final_cut, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar, out_chi2, out_ndf,
+              out_status, out_nut, out_nsf):
+    """UT confirmation with the SciFi q/p as prior, then the final fit (step 5)."""
+    st = _reference(ext, poly, tref, quad, a, f_layer, n_fwd, s_v, q_best, abs(q_best), ref_s,
+                    ref_F, ref_Q, work)
+    if st == TRANSPORT_FAILED:
+        return False
+    confirm_min = iopt[_I_CONFIRM_MIN]
+    if confirm_min > 0:
+        for j in range(n_fwd):
+            mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
+        for i in range(5):
+            x0[i] = 0.0
+        _velo_prior(opt, abs(q_best), 0.0, P0)
+        P0[4, 4] = var_best
+        nb_c, _, _ = _search(
+            0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+            opt[_O_CONFIRM_NSIG], iopt[_I_BRANCH], iopt[_I_BRANCH], n_ut - confirm_min,
+            confirm_min, True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP)
+        for j in range(n_ut):
+            fixed[j] = path[j] if nb_c >= confirm_min else -1
+    else:
+        for j in range(n_ut):
+            fixed[j] = ut_hits[j] if use_ut_hits else -1
+    for j in range(n_fwd):
+        mode[j] = _MODE_FIXED
+        if j >= n_ut:
+            fixed[j] = sf_path[j]
+    for i in range(4):
+        x0[i] = 0.0
+    x0[4] = -q_best
+    _velo_prior(opt, abs(q_best), opt[_O_WEAK_QPRIOR], P0)
+    _, n_fit, chi_f = _search(
+        0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+        f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+        opt[_O_NSIG], 1, 1, 0, 0, False, 0, final_cut, iopt[_I_MAX_NODES], ws, path, bx, bP)
+    if n_fit < 1:
+        return False
+    n_u = 0
+    n_s = 0
+    for j in range(n_fwd):
+        if path[j] >= 0:
+            if j < n_ut:
+                n_u += 1
+            else:
+                n_s += 1
+    if n_s < iopt[_I_SF_MIN] or chi_f > final_cut[min(n_u + n_s, final_cut.shape[0] - 1)]:
+        return False
+    for j in range(n_fwd):
+        out_hits[t, j] = path[j]
+    out_q[t] = ref_s[n_fwd - 1, 4] + bx[4]
+    out_qvar[t] = bP[4, 4]
+    out_chi2[t] = chi_f
+    out_ndf[t] = n_u + n_s - 1
+    out_nut[t] = n_u
+    out_nsf[t] = n_s
+    out_status[t] = STATUS_OK if n_u > 0 else STATUS_NO_UT
+    return True
+
+
+# ------------------------------------------------------------------------------------
+# Python interface
+# ------------------------------------------------------------------------------------
+
+def _layout(geometry: Geometry):
+    """Forward layers (UT then SciFi) and their requirement bits."""
+    sub = geometry.layer_subdetector
+    ut = np.flatnonzero(sub == SUBDETECTORS.index("ut"))
+    sf = np.flatnonzero(sub == SUBDETECTORS.index("scifi"))
+    velo = np.flatnonzero(sub == SUBDETECTORS.index("velo"))
+    if ut.size == 0 or sf.size == 0 or velo.size == 0:
+        raise InputError(f"geometry {geometry.name!r}: the forward extension needs VELO, UT and SciFi layers")
+    if np.any(geometry.layer_kind[np.concatenate([ut, sf])] != 1):
+        raise InputError(f"geometry {geometry.name!r}: UT and SciFi layers must be strip layers")
+    f_layer = np.concatenate([ut, sf]).astype(np.int64)
+    n_fwd = f_layer.size
+    stations = np.unique(geometry.layer_station[sf])
+    if stations.size > 15:
+        raise InputError(f"geometry {geometry.name!r}: too many SciFi stations")
+    is_x = np.abs(geometry.layer_stereo[f_layer]) < 1e-9
+    f_bit = np.zeros(n_fwd, dtype=np.int64)
+    f_group_end = np.zeros(n_fwd, dtype=np.bool_)
+    f_need_end = np.zeros(n_fwd, dtype=np.int64)
+    sf_need = 0
+    for s_i, station in enumerate(stations):
+        members = np.flatnonzero((geometry.layer_station[f_layer] == station)
+                                 & (geometry.layer_subdetector[f_layer] == SUBDETECTORS.index("scifi")))
+        for j in members:
+            f_bit[j] = 1 << (2 * s_i + (0 if is_x[j] else 1))
+        need = 0
+        if np.any(is_x[members]):
+            need |= 1 << (2 * s_i)
+        if np.any(~is_x[members]):
+            need |= 1 << (2 * s_i + 1)
+        f_group_end[members[-1]] = True
+        f_need_end[members[-1]] = need
+        sf_need |= need
+    x_fwd = np.flatnonzero(is_x & (np.arange(n_fwd) >= ut.size))
+    if x_fwd.size == 0 or x_fwd.size > 30:
+        raise InputError(f"geometry {geometry.name!r}: the SciFi needs 1–30 x layers")
+    x_layers = f_layer[x_fwd]
+    x_station_bit = np.array([1 << int(np.searchsorted(stations, geometry.layer_station[lay]))
+                              for lay in x_layers], dtype=np.int64)
+    x_station_need = int(np.bitwise_or.reduce(x_station_bit))
+    return dict(
+        velo=velo, n_ut=int(ut.size), f_layer=f_layer,
+        f_cos=geometry.layer_cos[f_layer].astype(np.float64),
+        f_sin=geometry.layer_sin[f_layer].astype(np.float64),
+        f_sig=geometry.layer_sigma[f_layer].astype(np.float64),
+        f_bit=f_bit, f_group_end=f_group_end, f_need_end=f_need_end, sf_need=int(sf_need),
+        x_layers=x_layers.astype(np.int64), x_fwd=x_fwd.astype(np.int64), x_station_bit=x_station_bit, x_station_need=x_station_need,
+    )
+
+
+def _chi2_table(pvalue: float, n: int, offset: int) -> np.ndarray:
+    """χ² upper cut per number of measurements m (index), ndf = max(m − offset, 1)."""
+    m = np.arange(n)
+    ndf = np.maximum(m - offset, 1)
+    if pvalue <= 0.0:
+        return np.full(n, np.inf)
+    return chi2_dist.isf(pvalue, ndf)
+
+
+def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
+                       geometry: Geometry, ext, options: ForwardOptions | None = None,
+                       **overrides) -> ForwardTracks:
+    """Extend VELO tracks through the UT and the SciFi (DESIGN §7.4).
+
+    track_event (n,): event id of each VELO track; velo_state (n, 4): (x, y, tx, ty) [mm]
+    at z_state (n,) [mm], a z inside the VELO (the state is moved along its straight line
+    to the nearest VELO layer: the VELO is straight to the parametrization's precision);
+    hit_event, hit_layer, hit_u, hit_sigma: hit columns of the same events (any order;
+    only UT and SciFi rows are used; u = x·cos α + y·sin α, σ_u [mm]); ext: the context
+    of the parametrized extrapolator (`ParameterSet.extrapolator(geometry)`); options:
+    `ForwardOptions` or keyword overrides. Returns `ForwardTracks` (hit rows index the
+    input hit arrays).
+    """
+    if options is None:
+        options = ForwardOptions(**overrides)
+    elif overrides:
+        options = ForwardOptions(**(asdict(options) | overrides))
+    lay = _layout(geometry)
+    track_event = np.ascontiguousarray(track_event, dtype=np.int64)
+    velo_state = np.ascontiguousarray(velo_state, dtype=np.float64).reshape(-1, 4)
+    z_state = np.ascontiguousarray(z_state, dtype=np.float64)
+    n = track_event.size
+    if velo_state.shape[0] != n or z_state.shape != (n,):
+        raise ValueError("track_event, velo_state (n, 4) and z_state (n,) must describe the same tracks")
+    hit_event = np.asarray(hit_event, dtype=np.int64)
+    hit_layer = np.asarray(hit_layer, dtype=np.int64)
+    hit_u = np.asarray(hit_u, dtype=np.float64)
+    hit_sigma = np.asarray(hit_sigma, dtype=np.float64)
+    if not (hit_event.shape == hit_layer.shape == hit_u.shape == hit_sigma.shape):
+        raise ValueError("hit columns must have the same length")
+    f_layer = lay["f_layer"]
+    n_fwd = f_layer.size
+    # forward index of every hit (−1 for VELO/other)
+    fwd_of_layer = np.full(geometry.layer_z.size, -1, dtype=np.int64)
+    fwd_of_layer[f_layer] = np.arange(n_fwd)
+    valid_layer = (hit_layer >= 0) & (hit_layer < fwd_of_layer.size)
+    hf = np.where(valid_layer, fwd_of_layer[np.clip(hit_layer, 0, fwd_of_layer.size - 1)], -1)
+    use = np.flatnonzero((hf >= 0) & np.isfinite(hit_u) & (hit_sigma > 0))
+    events = np.unique(track_event)
+    ev_index = np.searchsorted(events, hit_event[use])
+    known = (ev_index < events.size) & (events[np.minimum(ev_index, events.size - 1)] == hit_event[use])
+    use = use[known]
+    ev_index = ev_index[known]
+    order = np.lexsort((hit_u[use], hf[use], ev_index))
+    rows = use[order]
+    key = ev_index[order] * n_fwd + hf[rows]
+    n_ev = events.size
+    bounds = np.searchsorted(key, np.arange(n_ev * n_fwd + 1))
+    lay_off = bounds[np.arange(n_ev)[:, None] * n_fwd + np.arange(n_fwd + 1)[None, :]].astype(np.int64)
+    hu = np.ascontiguousarray(hit_u[rows])
+    hsig = np.ascontiguousarray(hit_sigma[rows])
+    # tracks: event index, VELO layer, state moved to it
+    t_ev = np.searchsorted(events, track_event).astype(np.int64)
+    velo = lay["velo"]
+    vz = geometry.layer_z[velo]
+    nearest = np.clip(np.searchsorted(vz, z_state), 1, max(vz.size - 1, 1))
+    pick = np.where(np.abs(vz[nearest - 1] - z_state) <= np.abs(vz[np.minimum(nearest, vz.size - 1)] - z_state),
+                    nearest - 1, np.minimum(nearest, vz.size - 1)) if vz.size > 1 else np.zeros(n, dtype=np.int64)
+    t_layer = velo[pick].astype(np.int64)
+    dz = geometry.layer_z[t_layer] - z_state
+    state = velo_state.copy()
+    state[:, 0] += velo_state[:, 2] * dz
+    state[:, 1] += velo_state[:, 3] * dz
+    bad = ~np.isfinite(z_state) | (z_state < vz[0] - 50.0) | (z_state > vz[-1] + 50.0)
+    t_layer[bad] = -1
+    # options, tables, buffers
+    meta = ext.uts_meta
+    p_table = float(meta[2]) if meta.size > 2 and meta[2] > 0 else 3000.0
+    fopt, iopt = options.vectors(p_table)
+    n_meas = n_fwd + 2
+    ut_prune = _chi2_table(1e-6, n_meas, 1) + 10.0
+    sf_prune = _chi2_table(1e-7, n_meas, 1) + 10.0
+    final_cut = _chi2_table(options.pvalue, n_meas, 1)
+    x_fwd = np.isin(f_layer, lay["x_layers"])
+    per_event_x = np.diff(lay_off, axis=1)[:, x_fwd].sum(axis=1) if n_ev else np.zeros(0)
+    max_entries = int(per_event_x.max()) + 1 if n_ev else 1
+    qmax = 1.0 / options.p_min
+    t_max = (math.log1p(options.hough_tol_rel * qmax / options.hough_tol_abs) / options.hough_tol_rel
+             if options.hough_tol_rel > 0 else qmax / options.hough_tol_abs)
+    max_bins = int(2.0 * t_max) + 4
+    poly, tref = new_table_buffers(ext)
+    out_hits = np.full((n, n_fwd), -1, dtype=np.int64)
+    out_q = np.full(n, np.nan)
+    out_qvar = np.full(n, np.nan)
+    out_chi2 = np.full(n, np.nan)
+    out_ndf = np.zeros(n, dtype=np.int64)
+    out_status = np.full(n, STATUS_NOT_FOUND, dtype=np.int64)
+    out_nut = np.zeros(n, dtype=np.int64)
+    out_nsf = np.zeros(n, dtype=np.int64)
+    if n and n_ev:
+        _extend_kernel(ext, poly, tref, f_layer, lay["f_cos"], lay["f_sin"], lay["f_sig"], lay["f_bit"],
+                       lay["f_group_end"], lay["f_need_end"], lay["sf_need"], lay["x_layers"],
+                       lay["x_fwd"], lay["x_station_bit"], lay["x_station_need"], lay["n_ut"],
+                       t_ev, state, t_layer, lay_off, hu, hsig, fopt, iopt, ut_prune, sf_prune,
+                       final_cut, max_entries, max_bins,
+                       out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf)
+    found = out_hits >= 0
+    counts = found.sum(axis=1)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    hit_rows = rows[out_hits[found]] if found.any() else np.zeros(0, dtype=np.int64)
+    p_table_q = 1.0 / p_table
+    return ForwardTracks(
+        offsets=offsets, hit_rows=hit_rows.astype(np.int64), n_ut=out_nut, n_scifi=out_nsf,
+        qop=out_q, qop_var=out_qvar, chi2=out_chi2, ndf=out_ndf, status=out_status,
+        below_table_p_min=np.abs(out_q) > p_table_q,
+    )
