@@ -32,9 +32,9 @@ def _numeric_jacobian(step, p, s, z0, z1):
 @pytest.mark.parametrize(
     "step, params, z0, z1",
     [
-        (velo_step, np.array([-1.2e-7, 300.0] + [0] * 7), 100.0, 250.0),
-        (layer_step, np.array([-0.08, 1e-4 * 0, 1e-9, 0.45, 2e-3, 0.5, -0.1, -0.03, 0.3]), 2327.5, 2372.5),
-        (velo_to_ut_step, np.array([3.0, -60.0, 0.01, 20.0, 1200.0, 0.1, 1e-5, 50.0, 0.5]), 300.0, 2327.5),
+        (velo_step, np.array([-1.2e-7, 300.0] + [0] * 13), 100.0, 250.0),
+        (layer_step, np.array([-0.08, 1e-4 * 0, 1e-9, 0.45, 2e-3, 0.5, -0.1, -0.03, 0.3, 2e-9, -4e-9, 3e-5, -2e-5, 1e-10, -2e-10]), 2327.5, 2372.5),
+        (velo_to_ut_step, np.array([3.0, -60.0, 0.01, 20.0, 1200.0, 0.1, 1e-5, 50.0, 0.5, 0, 0, 0, 0, 0, 0]), 300.0, 2327.5),
     ],
 )
 def test_jacobian_matches_finite_differences(step, params, z0, z1, state):
@@ -65,7 +65,7 @@ def test_velo_to_ut_is_a_kink_at_z_mag():
 
 def test_noise_matrix_follows_eq_11():
     noise = np.empty((5, 5))
-    pn = np.array([2.0, 0.4, 0.8, -0.5, 1e-5])
+    pn = np.array([2.0, 0.4, 0.8, -0.5, 1e-5, 0.0])
     state = np.array([0.0, 0.0, 0.3, -0.1, 1 / 5000.0])
     parametrized_noise(pn, state, 100.0, noise)
     n2 = 1 + 0.3**2 + 0.1**2

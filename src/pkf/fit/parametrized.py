@@ -152,7 +152,13 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
                         layer_z[cur], layer_z[nxt], seg_state, seg_jac)
         if status != STATUS_OK:
             return status
-        parametrized_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_noise)
+        pn = ext.noise[slot]
+        parametrized_noise(pn, state_out, layer_z[nxt] - layer_z[cur], seg_noise)
+        if pn[5] > 0.0:  # energy-loss straggling before the step: q/p noise through J
+            var_qop = (pn[5] * state_out[4] * state_out[4]) ** 2
+            for i in range(5):
+                for j in range(5):
+                    seg_noise[i, j] += var_qop * seg_jac[i, 4] * seg_jac[j, 4]
         copy5(seg_state, state_out)
         if first:  # F = J, Q = Q_seg: most node-to-node steps are a single paper step
             copy55(seg_jac, jac_out)

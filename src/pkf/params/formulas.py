@@ -11,10 +11,16 @@ Step types (DESIGN §9.2):
 - `layer_step` — paper eq. 14 (UT and SciFi, one set per layer step):
   f_tx = tx + (p0·qop + p1·qop³ + p2·y²·qop + p6·qop·tx² + p7·qop·ty²)·Δz,
   f_x = x + [p3·tx + (1 − p3)·f_tx]·Δz, f_ty = ty + p4·qop·tx·sign(y) + p8·qop·tx·ty,
-  f_y = y + [p5·ty + (1 − p5)·f_ty]·Δz. p0…p5 are the paper's; p6…p8 extend it with
-  the slope dependence of the equations of motion, dtx/dz ∝ N·(1 + tx²) ≈ 1 + 1.5·tx² +
-  0.5·ty² and dty/dz ∝ −N·tx·ty (DESIGN §2): without them the curvature of a track with
-  slope 0.25 is off by ~10% (measured: σ(q/p) pulls 1.29 on the telescope).
+  f_y = y + [p5·ty + (1 − p5)·f_ty]·Δz, plus p9·qop·x² + (p11 + p13·y²)·qop·ty·y in the
+  kick of f_tx and p10·qop·x·y + (p12 + p14·y²)·qop·tx·y in f_ty. p0…p5 are the paper's; p6…p8 add the slope dependence of the
+  equations of motion, dtx/dz ∝ N·(1 + tx²) ≈ 1 + 1.5·tx² + 0.5·ty² and dty/dz ∝
+  −N·tx·ty (DESIGN §2): without them the curvature of a track with slope 0.25 is off by
+  ~10% (measured: σ(q/p) pulls 1.29 on the telescope); p9, p10 the field's fall with |x|
+  (B_y ∝ 1 + k·(x² − y²)/L², B_x ∝ x·y, DESIGN §3.1), which at the SciFi's |x| ≤ 3 m
+  changes the kick by tens of percent; p11, p12 the fringe field's B_z = b′(z)·y (the
+  ty·B_z and −tx·B_z terms of DESIGN §2), as large as B_y at the SciFi for |y| ~ 1 m
+  (measured: a 1 mrad error at 3–5 GeV in the first SciFi step without them); p13, p14
+  its y³ term (B_z = b′·y − b‴·y³/6).
 - `velo_to_ut_step` — paper eqs. 15–20: ty_UT = ty_V + p0·qop·tx_V·sign(y_V) (17);
   ∫(dl×B)_x = p1 + p2·z_V + p3·ty_V² (18) so that tx_UT/N_UT = tx_V/N_V + qop·∫(dl×B)_x
   (15); z_mag = p4 + p5·z_V + p6·z_V² + p7·ty_V² (19); x_UT = x_V + (z_mag − z_V)·tx_V +
@@ -22,7 +28,11 @@ Step types (DESIGN §9.2):
 
 `parametrized_noise` is paper eq. 11 with the path-length factors of Highland scattering
 and a noise floor p̃4 (DESIGN §15: Allen's failure mode for high-momentum, large-slope
-tracks, where the ∝ 1/p noise vanishes below the parametrization error).
+tracks, where the ∝ 1/p noise vanishes below the parametrization error). p̃5 [MeV] is
+the spread of the energy lost before a step (straggling): it enters as q/p noise
+(p̃5·qop²)² at the start of the step, propagated through the step's Jacobian (see
+`pkf.fit.parametrized`) — the state carries the production momentum, so the
+fluctuation of the energy lost upstream of the magnet is a real uncertainty there.
 """
 
 from __future__ import annotations
@@ -31,8 +41,8 @@ import math
 
 import numba as nb
 
-N_EXTRAPOLATION_PARAMS = 9  # the longest set (VELO→UT); shorter sets use the first entries
-N_NOISE_PARAMS = 5
+N_EXTRAPOLATION_PARAMS = 15  # the longest set (extended eq. 14); shorter sets use the first entries
+N_NOISE_PARAMS = 6
 
 
 @nb.njit(cache=True, inline="always")
@@ -68,14 +78,16 @@ def velo_step(p, s, z_from, z_to, out, jac):
 
 @nb.njit(cache=True)
 def layer_step(p, s, z_from, z_to, out, jac):
-    """Paper eq. 14 (UT ↔ UT, SciFi ↔ SciFi), extended by slope terms p6…p8."""
+    """Paper eq. 14 (UT ↔ UT, SciFi ↔ SciFi), extended by slope and field-shape terms p6…p14."""
     dz = z_to - z_from
     x, y, tx, ty, qop = s[0], s[1], s[2], s[3], s[4]
     sy = _sign(y)
     kick = (p[0] * qop + p[1] * qop * qop * qop + p[2] * y * y * qop
-            + p[6] * qop * tx * tx + p[7] * qop * ty * ty)
+            + p[6] * qop * tx * tx + p[7] * qop * ty * ty + p[9] * qop * x * x
+            + (p[11] + p[13] * y * y) * qop * ty * y)
     f_tx = tx + kick * dz
-    f_ty = ty + p[4] * qop * tx * sy + p[8] * qop * tx * ty
+    f_ty = (ty + p[4] * qop * tx * sy + p[8] * qop * tx * ty + p[10] * qop * x * y
+            + (p[12] + p[14] * y * y) * qop * tx * y)
     out[0] = x + (p[3] * tx + (1.0 - p[3]) * f_tx) * dz
     out[1] = y + (p[5] * ty + (1.0 - p[5]) * f_ty) * dz
     out[2] = f_tx
@@ -83,29 +95,39 @@ def layer_step(p, s, z_from, z_to, out, jac):
     out[4] = qop
     _identity(jac)
     # ∂f_tx
-    dtx_dy = 2.0 * p[2] * y * qop * dz
+    dtx_dx = 2.0 * p[9] * x * qop * dz
+    dtx_dy = (2.0 * p[2] * y + (p[11] + 3.0 * p[13] * y * y) * ty) * qop * dz
     dtx_dtx = 1.0 + 2.0 * p[6] * qop * tx * dz
-    dtx_dty = 2.0 * p[7] * qop * ty * dz
-    dtx_dqop = (p[0] + 3.0 * p[1] * qop * qop + p[2] * y * y + p[6] * tx * tx + p[7] * ty * ty) * dz
+    dtx_dty = (2.0 * p[7] * ty + (p[11] + p[13] * y * y) * y) * qop * dz
+    dtx_dqop = (p[0] + 3.0 * p[1] * qop * qop + p[2] * y * y + p[6] * tx * tx + p[7] * ty * ty
+                + p[9] * x * x + (p[11] + p[13] * y * y) * ty * y) * dz
+    jac[2, 0] = dtx_dx
     jac[2, 1] = dtx_dy
     jac[2, 2] = dtx_dtx
     jac[2, 3] = dtx_dty
     jac[2, 4] = dtx_dqop
     # ∂f_ty
-    dty_dtx = p[4] * qop * sy + p[8] * qop * ty
+    dty_dx = p[10] * qop * y
+    dty_dy = (p[10] * x + (p[12] + 3.0 * p[14] * y * y) * tx) * qop
+    dty_dtx = p[4] * qop * sy + p[8] * qop * ty + (p[12] + p[14] * y * y) * qop * y
     dty_dty = 1.0 + p[8] * qop * tx
-    dty_dqop = p[4] * tx * sy + p[8] * tx * ty
+    dty_dqop = p[4] * tx * sy + p[8] * tx * ty + p[10] * x * y + (p[12] + p[14] * y * y) * tx * y
+    jac[3, 0] = dty_dx
+    jac[3, 1] = dty_dy
     jac[3, 2] = dty_dtx
     jac[3, 3] = dty_dty
     jac[3, 4] = dty_dqop
     # ∂f_x = ∂x + [p3·∂tx + (1 − p3)·∂f_tx]·Δz
     w = (1.0 - p[3]) * dz
+    jac[0, 0] = 1.0 + w * dtx_dx
     jac[0, 1] = w * dtx_dy
     jac[0, 2] = p[3] * dz + w * dtx_dtx
     jac[0, 3] = w * dtx_dty
     jac[0, 4] = w * dtx_dqop
     # ∂f_y
     v = (1.0 - p[5]) * dz
+    jac[1, 0] = v * dty_dx
+    jac[1, 1] = 1.0 + v * dty_dy
     jac[1, 2] = v * dty_dtx
     jac[1, 3] = p[5] * dz + v * dty_dty
     jac[1, 4] = v * dty_dqop

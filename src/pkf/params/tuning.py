@@ -38,6 +38,7 @@ from pkf.fit.parametrized import (
 )
 from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS, layer_step, velo_step, velo_to_ut_step
 from pkf.params.parameter_set import SlotStructure
+from pkf.report.gauss import gaussian_core
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate, ut_to_scifi_extrapolate_many
 from pkf.physics.transport import rk4_propagate_scalar
 
@@ -47,6 +48,8 @@ REFERENCE_MAX_STEP = 50.0
 #: mm: position residuals below this (nm-scale parametrization errors, irrelevant next to
 #: 10 µm hits) must not drive the noise fit — without it the noise floor p̃4 grew to fit them
 POSITION_RESOLUTION_FLOOR = 1e-3
+#: 1/MeV: added to |q/p| in the per-pair scale of the extrapolation fits (1/(100 GeV))
+SCALE_FLOOR_QOP = 1e-5
 
 
 @dataclass
@@ -135,8 +138,18 @@ class FitReport:
         return {"valid": self.valid, "calls": self.calls, "points": self.points, "sigma": self.sigma}
 
 
-def robust_linear_fit(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, FitReport]:
-    """β maximising Σ log[(1−ε)·G(target − design·β; σ) + ε/range] (eq. 12), σ free."""
+def robust_linear_fit(design: np.ndarray, target: np.ndarray, scale: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, FitReport]:
+    """β maximising Σ log[(1−ε)·G(target − design·β; σ·scale) + ε/range] (eq. 12).
+
+    σ is free; `scale` gives each pair's expected spread up to that factor — in eq. 12 the
+    width is √Q_ss ∝ |q/p|, so the steps pass |q/p| (+ 1/100 GeV): without it the many
+    high-momentum pairs with tiny residuals set σ and the low-momentum ones, whose
+    residuals are larger, end up in the outlier term and do not shape the fit.
+    """
+    if scale is not None:
+        design = design / scale[:, None]
+        target = target / scale
     good = np.all(np.isfinite(design), axis=1) & np.isfinite(target)
     design, target = design[good], target[good]
     n, k = design.shape
@@ -204,7 +217,9 @@ def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, 
     m.errordef = Minuit.LIKELIHOOD
     m.limits = [(0, None), (1e-4, 10.0), (-0.99, 0.99), (-0.99, 0.99), (0, None)]
     m.migrad()
-    return np.abs(np.asarray(m.values)), FitReport(bool(m.valid), int(m.nfcn), n)
+    params = np.zeros(N_NOISE_PARAMS)
+    params[:5] = np.abs(np.asarray(m.values))  # p̃5 (straggling) is set per step type
+    return params, FitReport(bool(m.valid), int(m.nfcn), n)
 
 
 # ----------------------------------------------------------------------------- per step type
@@ -220,40 +235,49 @@ def fit_extrapolation(kind: int, x1: np.ndarray, x2_ref: np.ndarray, z1: np.ndar
     reports = {}
     x, y, tx, ty, qop = x1.T
     dz = z2 - z1
+    scale = np.abs(qop) + SCALE_FLOOR_QOP
+
+    def robust_linear_fit_scaled(design, target):
+        return robust_linear_fit(design, target, scale)
+
     if kind == STEP_VELO:
-        beta, reports["tx"] = robust_linear_fit(np.column_stack([qop * z1, qop]), (x2_ref[:, 2] - tx) / dz)
+        beta, reports["tx"] = robust_linear_fit_scaled(np.column_stack([qop * z1, qop]), (x2_ref[:, 2] - tx) / dz)
         p[0] = beta[0]
         p[1] = beta[1] / beta[0] if beta[0] != 0 else 0.0
     elif kind in (STEP_UT, STEP_SCIFI):
-        design = np.column_stack([qop, qop**3, y * y * qop, qop * tx * tx, qop * ty * ty])
-        beta, reports["tx"] = robust_linear_fit(design, (x2_ref[:, 2] - tx) / dz)
+        design = np.column_stack([qop, qop**3, y * y * qop, qop * tx * tx, qop * ty * ty, qop * x * x,
+                                  qop * ty * y, qop * ty * y**3])
+        beta, reports["tx"] = robust_linear_fit_scaled(design, (x2_ref[:, 2] - tx) / dz)
         p[0:3] = beta[0:3]
         p[6:8] = beta[3:5]
+        p[9] = beta[5]
+        p[11] = beta[6]
+        p[13] = beta[7]
         f_tx = tx + (design @ beta) * dz
-        beta, reports["x"] = robust_linear_fit(((tx - f_tx) * dz)[:, None], x2_ref[:, 0] - x - f_tx * dz)
+        beta, reports["x"] = robust_linear_fit_scaled(((tx - f_tx) * dz)[:, None], x2_ref[:, 0] - x - f_tx * dz)
         p[3] = beta[0]
-        design = np.column_stack([qop * tx * _sign(y), qop * tx * ty])
-        beta, reports["ty"] = robust_linear_fit(design, x2_ref[:, 3] - ty)
-        p[4], p[8] = beta
+        design = np.column_stack([qop * tx * _sign(y), qop * tx * ty, qop * x * y, qop * tx * y, qop * tx * y**3])
+        beta, reports["ty"] = robust_linear_fit_scaled(design, x2_ref[:, 3] - ty)
+        p[4], p[8], p[10], p[12], p[14] = beta
         f_ty = ty + design @ beta
-        beta, reports["y"] = robust_linear_fit(((ty - f_ty) * dz)[:, None], x2_ref[:, 1] - y - f_ty * dz)
+        beta, reports["y"] = robust_linear_fit_scaled(((ty - f_ty) * dz)[:, None], x2_ref[:, 1] - y - f_ty * dz)
         p[5] = beta[0]
     elif kind == STEP_VELO_TO_UT:
-        beta, reports["ty"] = robust_linear_fit((qop * tx * _sign(y))[:, None], x2_ref[:, 3] - ty)
+        beta, reports["ty"] = robust_linear_fit_scaled((qop * tx * _sign(y))[:, None], x2_ref[:, 3] - ty)
         p[0] = beta[0]
         n1 = np.sqrt(1 + tx**2 + ty**2)
         n2 = np.sqrt(1 + x2_ref[:, 2] ** 2 + x2_ref[:, 3] ** 2)
-        beta, reports["tx"] = robust_linear_fit(np.column_stack([qop, qop * z1, qop * ty**2]),
+        beta, reports["tx"] = robust_linear_fit_scaled(np.column_stack([qop, qop * z1, qop * ty**2]),
                                                 x2_ref[:, 2] / n2 - tx / n1)
         p[1:4] = beta
         ty_ut = ty + p[0] * qop * tx * _sign(y)
         a = tx / n1 + qop * (p[1] + p[2] * z1 + p[3] * ty**2)
         tx_ut = a * np.sqrt(1 + ty_ut**2) / np.sqrt(np.maximum(1 - a * a, 1e-12))
         kink = tx - tx_ut
-        beta, reports["x"] = robust_linear_fit(np.column_stack([kink, kink * z1, kink * z1**2, kink * ty**2]),
+        beta, reports["x"] = robust_linear_fit_scaled(np.column_stack([kink, kink * z1, kink * z1**2, kink * ty**2]),
                                                x2_ref[:, 0] - x + z1 * tx - z2 * tx_ut)
         p[4:8] = beta
-        beta, reports["y"] = robust_linear_fit(((ty - ty_ut) * dz)[:, None], x2_ref[:, 1] - y - ty_ut * dz)
+        beta, reports["y"] = robust_linear_fit_scaled(((ty - ty_ut) * dz)[:, None], x2_ref[:, 1] - y - ty_ut * dz)
         p[8] = beta[0]
     return p, {k: v.as_dict() for k, v in reports.items()}
 
@@ -293,10 +317,15 @@ def fit_table_energy_loss(x1: np.ndarray, x2_ref: np.ndarray, uts_arrays):
         ut_to_scifi_extrapolate_many(*uts_arrays, np.ascontiguousarray(shifted), predicted, jacobians, status)
         ok = status == 0
         design = (jacobians[:, 2, 4] * shifted[:, 4] * np.abs(shifted[:, 4]))[ok][:, None]
-        beta, report = robust_linear_fit(design, (x2_ref[:, 2] - predicted[:, 2])[ok])
+        beta, report = robust_linear_fit(design, (x2_ref[:, 2] - predicted[:, 2])[ok],
+                                         np.abs(shifted[ok, 4]) + SCALE_FLOOR_QOP)
         p[0] += beta[0]
         reports[f"energy_loss_pass{iteration}"] = report.as_dict()
     reports["delta_e_mev"] = float(p[0])
+    # straggling: the spread of the energy lost before the step, from the same residuals
+    # (δE_i = Δtx_i / (∂tx/∂qop·qop·|qop|)), its Gaussian core width [MeV]
+    implied = (x2_ref[:, 2] - predicted[:, 2])[ok] / design[:, 0]
+    reports["straggling_mev"] = float(gaussian_core(implied).sigma)
     return p, reports
 
 
@@ -342,6 +371,8 @@ def tune_slots(slots: SlotStructure, pairs: StatePairs, layer_z: np.ndarray, uts
         _apply_many(k, p, np.ascontiguousarray(x1), z1[sel], z2[sel], *uts_arrays, predicted)
         d = predicted - x2
         pn, noise_report = fit_noise(d[:, 0], d[:, 2], d[:, 1], d[:, 3], x1, z2[sel] - z1[sel])
+        if k == STEP_UT_TO_SCIFI:
+            pn[5] = rep["straggling_mev"]
         extrapolation[members] = p
         noise[members] = pn
         reports[name] = {"kind": int(k), "slots": [int(m) for m in members], "pairs": int(sel.size),
