@@ -18,6 +18,10 @@ from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
 from pkf.pipeline.inputs import align_mc, column, load_dataset, particle_key, production_truth
 
 UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
+#: (x/z, y/z) grid points of the UT→SciFi table. The paper uses 50×50; 50×100 halves the
+#: spacing in y/z, across which the field (and its 100 mm map) varies fastest: the table's
+#: error at 3–5 GeV drops from 86 to 53 µm RMS (measured at the first SciFi layer).
+UT_TO_SCIFI_GRID = (50, 100)
 PDG_PION = 211
 
 
@@ -28,7 +32,8 @@ def ut_to_scifi_table(geometry: Geometry, field_map) -> UTSciFiTable | None:
         if kind == STEP_UT_TO_SCIFI:
             last = slots.sub_last[s]
             return tabulate_ut_to_scifi(field_map, z_from=float(geometry.layer_z[last]),
-                                        z_to=float(geometry.layer_z[last + 1]), p_min=UT_TO_SCIFI_P_MIN)
+                                        z_to=float(geometry.layer_z[last + 1]), p_min=UT_TO_SCIFI_P_MIN,
+                                        nx=UT_TO_SCIFI_GRID[0], ny=UT_TO_SCIFI_GRID[1])
     return None
 
 
