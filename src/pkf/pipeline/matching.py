@@ -81,3 +81,12 @@ def reconstructible_particles(geometry, particle_key: np.ndarray, layer: np.ndar
         ok &= np.bincount(inverse, weights=in_station & is_x, minlength=keys.size) >= 1
         ok &= np.bincount(inverse, weights=in_station & ~is_x, minlength=keys.size) >= 1
     return keys[ok]
+
+
+def velo_reconstructible_particles(geometry, particle_key: np.ndarray, layer: np.ndarray) -> np.ndarray:
+    """Keys of the particles with ≥ 3 VELO hits (VELO-track efficiency, DESIGN §10)."""
+    from pkf.geometry.detector import SUBDETECTORS
+
+    signal = (particle_key > 0) & (geometry.layer_subdetector[layer] == SUBDETECTORS.index("velo"))
+    keys, counts = np.unique(particle_key[signal], return_counts=True)
+    return keys[counts >= 3]

@@ -17,10 +17,11 @@ import pyarrow as pa
 from tqdm import tqdm
 
 import pkf
-from pkf.errors import InputError, NotBuiltYet
+from pkf.errors import InputError
 from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import Fitter, get_fitter
+from pkf.params.parameter_set import load_parameters
 from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json, check_output_dir, staged_output_dir
@@ -36,7 +37,13 @@ from pkf.pipeline.inputs import (
     particle_key,
     production_truth,
 )
-from pkf.pipeline.matching import match_tracks, pattern_metrics, reconstructible_particles
+from pkf.pipeline.matching import (
+    match_tracks,
+    pattern_metrics,
+    reconstructible_particles,
+    velo_reconstructible_particles,
+)
+from pkf.pipeline.triplet_pattern import triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
 
 EVENTS_PER_CHUNK = 500
@@ -65,10 +72,7 @@ class ReconstructionConfig:
             raise InputError(f"--iterations: must be >= 1, not {self.iterations}")
         if len(set(self.fitters)) != len(self.fitters):
             raise InputError("--fitter: a fitter is given twice")
-        fitters = [get_fitter(name) for name in self.fitters]
-        if self.pattern == "triplet":
-            raise NotBuiltYet("--pattern triplet: not built yet (issue #5); use --pattern truth")
-        return fitters
+        return [get_fitter(name) for name in self.fitters]
 
 
 @dataclass
@@ -121,6 +125,9 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     fit_options = FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
                              iterations=config.iterations)
     fitters_ext = [(f, f.make_extrapolator(geometry, config.params)) for f in fitters]
+    # the forward extension of the triplet pattern uses the parametrized extrapolations
+    pattern_ext = (load_parameters(geometry, config.params).extrapolator(geometry)
+                   if config.pattern == "triplet" else None)
     beamline_ext = straight_line_extrapolator(geometry)
 
     hits = dataset.hits
@@ -133,7 +140,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     fit_stats = {f.name: {"wall_s": 0.0, "tracks": 0, "nodes": 0} for f in fitters}
     counts = {"events": int(np.unique(event_id).size), "hits": int(hits.num_rows), "candidates": 0,
               "tracks": {f.name: 0 for f in fitters}}
-    matched_all, reconstructible_all = [], []
+    matched_all, long_all, reconstructible_all, velo_reconstructible_all = [], [], [], []
     bounds = _chunk_bounds(event_id, EVENTS_PER_CHUNK)
     warmed = False
     with staged_output_dir(out, overwrite) as staging:
@@ -149,7 +156,12 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                 ev = event_id[lo:hi]
                 layer = column(chunk, "layer", np.int64)
                 with _Clock(timing, "pattern"):
-                    cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle[lo:hi])
+                    if config.pattern == "truth":
+                        cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle[lo:hi])
+                    else:
+                        cand_event, cand_track, cand_row = triplet_candidates(
+                            geometry, pattern_ext, ev, layer, column(chunk, "u"), column(chunk, "v"),
+                            column(chunk, "z"), column(chunk, "sigma_u"), column(chunk, "sigma_v"))
                     n_tracks, track_of_hit = _global_tracks(cand_event, cand_track)
                     batch = TrackBatch.from_candidates(
                         geometry, track_of_hit, cand_row, layer, column(chunk, "u"),
@@ -165,7 +177,11 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                     mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
                     mc_particle = np.where(mc_id >= 0, mc_id % _PARTICLE_KEY_BASE, -1)
                     matched_all.append(mc_id)
+                    scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
+                                             == SUBDETECTORS.index("scifi"), minlength=n_tracks)
+                    long_all.append(scifi_hits > 0)
                     reconstructible_all.append(reconstructible_particles(geometry, hit_key, layer))
+                    velo_reconstructible_all.append(velo_reconstructible_particles(geometry, hit_key, layer))
                 else:
                     mc_particle = np.full(n_tracks, -1, dtype=np.int64)
                     fraction = np.zeros(n_tracks)
@@ -205,7 +221,12 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
             "timing": _timing_json(timing, fit_stats),
         }
         if has_mc:
-            run["pattern"] = pattern_metrics(np.concatenate(matched_all), np.concatenate(reconstructible_all))
+            matched = np.concatenate(matched_all)
+            is_long = np.concatenate(long_all)
+            run["pattern"] = pattern_metrics(matched[is_long], np.concatenate(reconstructible_all))
+            run["pattern"]["definition"] = ("long tracks (with SciFi hits) against long-reconstructible "
+                                            "particles (DESIGN §10)")
+            run["pattern"]["velo"] = pattern_metrics(matched, np.concatenate(velo_reconstructible_all))
         atomic_write_json(run, staging / "run.json")
     return run
 
