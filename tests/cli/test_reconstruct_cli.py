@@ -78,8 +78,18 @@ def test_reconstruct_bad_input(dataset, tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
-def test_not_built_fitters_say_so(dataset, tmp_path, capsys):
-    code = main(["reconstruct", str(dataset), "--out", str(tmp_path / "r"), "--pattern", "truth",
-                 "--fitter", "gsf"])
-    assert code == 1 and "not built yet" in capsys.readouterr().err
-    assert not (tmp_path / "r").exists()
+def test_gx2f_and_gsf_write_the_same_tables(dataset, tmp_path):
+    """--fitter gx2f and --fitter gsf (issue 7) run through the same pipeline and tables."""
+    out = tmp_path / "r"
+    assert main(["reconstruct", str(dataset), "--out", str(out), "--pattern", "truth",
+                 "--fitter", "reference", "--fitter", "gx2f", "--fitter", "gsf"]) == 0
+    chi2 = read_table(out, CHI2, name="chi2").to_pydict()
+    fitter = np.array(chi2["fitter"])
+    assert set(fitter) == {"reference", "gx2f", "gsf"}
+    for name in ("gx2f", "gsf"):
+        ok = np.array(chi2["status"])[fitter == name] == "ok"
+        assert ok.mean() > 0.95, name
+    states = read_table(out, STATES, name="states").to_pydict()
+    assert set(states["fitter"]) == {"reference", "gx2f", "gsf"}
+    info = json.loads((out / "run.json").read_text())
+    assert set(info["timing"]["fit"]) == {"reference", "gx2f", "gsf"}

@@ -1,9 +1,13 @@
-"""The fitters `pkf reconstruct --fitter` knows, each an extrapolator for the one Kalman core.
+"""The fitters `pkf reconstruct --fitter` knows: an extrapolator context and a fit function.
 
-A `Fitter` says how to build its extrapolator for a geometry and which q/p its states
+A `Fitter` says how to build its extrapolator for a geometry, which q/p its states
 carry: the local momentum (reference fitter, which applies energy loss) or the
 momentum at production (the parametrized fitter, paper §3), which decides the truth
-its pulls are computed against.
+its pulls are computed against, and which fit function runs it: the one Kalman core
+(`fit_batch`) for the Kalman fitters, `fit_batch_gx2f` for the global χ² fitter (on the
+reference extrapolator) and `fit_batch_gsf` for the Gaussian-sum filter (electron
+hypothesis, DESIGN §9.4–§9.5). Every fit function has the signature
+``fit(extrapolator, batch, options, seeds, seed_covs, beamline_extrapolator) -> FitResult``.
 """
 
 from __future__ import annotations
@@ -12,18 +16,23 @@ from dataclasses import dataclass
 from typing import Callable
 
 from pkf.errors import InputError, NotBuiltYet
+from pkf.fit.gsf import fit_batch_gsf, gsf_extrapolator
+from pkf.fit.gx2f import fit_batch_gx2f
 from pkf.fit.reference import reference_extrapolator
+from pkf.fit.tracks import fit_batch
 from pkf.geometry.detector import Geometry
 
 
 @dataclass(frozen=True)
 class Fitter:
-    """A named Kalman fitter: `make_extrapolator(geometry, params)` and its q/p convention."""
+    """A named fitter: `make_extrapolator(geometry, params)`, its q/p convention and its
+    fit function (default: the Kalman core's `fit_batch`)."""
 
     name: str
     make_extrapolator: Callable
     qop_at_production: bool
     iterations: int = 1
+    fit: Callable = fit_batch
 
 
 def _reference(geometry: Geometry, params=None):
@@ -36,11 +45,17 @@ def _parametrized(geometry: Geometry, params=None):
     return load_parameters(geometry, params).extrapolator(geometry)
 
 
+def _gsf(geometry: Geometry, params=None):
+    return gsf_extrapolator(geometry)
+
+
 FITTER_NAMES = ("parametrized", "reference", "gx2f", "gsf")
-_NOT_BUILT = {"gx2f": 7, "gsf": 7}
+_NOT_BUILT: dict[str, int] = {}
 _BUILT = {
     "parametrized": Fitter("parametrized", _parametrized, qop_at_production=True),
     "reference": Fitter("reference", _reference, qop_at_production=False),
+    "gx2f": Fitter("gx2f", _reference, qop_at_production=False, fit=fit_batch_gx2f),
+    "gsf": Fitter("gsf", _gsf, qop_at_production=False, fit=fit_batch_gsf),
 }
 
 

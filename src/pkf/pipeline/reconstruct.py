@@ -106,8 +106,8 @@ def _warm_up(fitters_ext, batch: TrackBatch, seeds, covs, options, beamline_ext)
     end = batch.offsets[n]
     small = TrackBatch(batch.offsets[: n + 1], batch.z[:end], batch.layer[:end], batch.hit_row[:end],
                        batch.n_meas[:end], batch.hx[:end], batch.hy[:end], batch.m[:end], batch.sigma[:end])
-    for _, ext in fitters_ext:
-        fit_batch(ext, small, options, seeds[:n], covs[:n], beamline_ext)
+    for fitter, ext in fitters_ext:
+        fitter.fit(ext, small, options, seeds[:n], covs[:n], beamline_ext)
 
 
 def run_reconstruction(dataset_path: str | Path, out: str | Path, config: ReconstructionConfig,
@@ -192,7 +192,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                 chunk_tables = {"chi2": [], "states": [], "pulls": []}
                 for fitter, ext in fitters_ext:
                     with _Clock(timing, f"fit.{fitter.name}") as clock:
-                        result = fit_batch(ext, batch, fit_options, seeds, seed_covs, beamline_ext)
+                        result = fitter.fit(ext, batch, fit_options, seeds, seed_covs, beamline_ext)
                     stats = fit_stats[fitter.name]
                     stats["wall_s"] += clock.elapsed
                     stats["tracks"] += n_tracks

@@ -86,9 +86,9 @@ from pkf.seeding.forward_steps import (
     TRANSPORT_BELOW_P_MIN,
     TRANSPORT_FAILED,
     new_table_buffers,
+    reference_trajectory,
     scan_states,
     table_localize,
-    transport,
 )
 
 __all__ = [
@@ -118,12 +118,12 @@ _MODE_OFF = 2
 
 # Per-kernel integer/float option vectors (see ForwardOptions.vectors)
 (_O_QMAX, _O_VSX, _O_VMSX, _O_VSTX, _O_VMSTX, _O_UT_QPRIOR, _O_WEAK_QPRIOR, _O_UT_NSIG,
- _O_HOUGH_NSIG, _O_TAU0, _O_TAU1, _O_NODE_DW, _O_NSIG, _O_PM_FLOOR, _O_PM_SCALE, _O_QTABLE,
- _O_CONFIRM_NSIG) = range(17)
-_N_FOPT = 17
+ _O_HOUGH_NSIG, _O_TAU0, _O_TAU1, _O_NODE_DW, _O_NSIG, _O_PM_FLOOR, _O_LINE_SIG, _O_LINE_MS,
+ _O_LINE_CHI2, _O_CONFIRM_NSIG, _O_MISS, _O_SLOPE_MS) = range(20)
+_N_FOPT = 20
 (_I_UT_MIN, _I_UT_FIRST, _I_BRANCH, _I_MIN_X, _I_MAX_CLUSTERS, _I_SF_MIN, _I_FALLBACK,
- _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X) = range(11)
-_N_IOPT = 11
+ _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X, _I_UT_CANDIDATES, _I_STEREO_CANDIDATES) = range(13)
+_N_IOPT = 13
 
 
 @dataclass(frozen=True)
@@ -150,8 +150,16 @@ class ForwardOptions:
     max_branch [2]            hits kept per layer and branch (best Δχ²)
     scifi_min_hits [9]        SciFi hits (of 12)
     station_x_and_stereo [True] ≥ 1 x and ≥ 1 stereo hit in each SciFi station
-    pseudo_floor [0.5]        floor of the cluster pseudo-measurement σ [mm]
-    pseudo_scale [2]          its σ in units of the cluster tolerance
+    line_sigma [0.15]         σ of an x hit about the straight line through a cluster [mm]
+    line_ms [1600]            + scattering in the SciFi: σ² = line_sigma² + (line_ms·q/p)² [mm·MeV]
+    line_chi2 [9]             cut on the cluster line χ²/ndf
+    slope_ms [1.7]            slope prior of the line: σ² = σtx²(given q/p, last UT layer)
+                              + (slope_ms·q/p)² (scattering from the UT to the SciFi) [MeV]
+    pseudo_floor [0.3]        added to the σ of the cluster pseudo-measurement [mm]
+    ut_candidates [3]         best UT leaves whose q/p ranges (± hough_sigmas·σ) are scanned
+    stereo_candidates [8]     q/p clusters (best x-line χ²) checked on the stereo layers
+    miss_penalty [9]          ranking of SciFi candidates: χ² − miss_penalty·(hits), lowest first
+    good_pvalue [0.01]        an extension with this χ² p-value and ≥ 11 SciFi hits ends the search
     pvalue [1e-6]             p-value cut on the final χ² (ndf = hits − 1)
     no_ut_fallback [True]     rescan without the UT candidate when it leads nowhere
     ut_confirm_min_hits [2]   UT hits re-collected with the SciFi q/p (0: keep the search's)
@@ -180,8 +188,15 @@ class ForwardOptions:
     max_branch: int = 2
     scifi_min_hits: int = 9
     station_x_and_stereo: bool = True
-    pseudo_floor: float = 0.5
-    pseudo_scale: float = 2.0
+    pseudo_floor: float = 0.3
+    line_sigma: float = 0.15
+    line_ms: float = 1600.0
+    line_chi2: float = 9.0
+    slope_ms: float = 1.7
+    ut_candidates: int = 3
+    stereo_candidates: int = 8
+    miss_penalty: float = 9.0
+    good_pvalue: float = 0.01
     pvalue: float = 1e-6
     no_ut_fallback: bool = True
     ut_confirm_min_hits: int = 2
@@ -227,8 +242,11 @@ class ForwardOptions:
         f[_O_NODE_DW] = self.node_spacing / p_table
         f[_O_NSIG] = self.window_sigmas
         f[_O_PM_FLOOR] = self.pseudo_floor
-        f[_O_PM_SCALE] = self.pseudo_scale
-        f[_O_QTABLE] = 1.0 / p_table
+        f[_O_LINE_SIG] = self.line_sigma
+        f[_O_LINE_MS] = self.line_ms
+        f[_O_LINE_CHI2] = self.line_chi2
+        f[_O_MISS] = self.miss_penalty
+        f[_O_SLOPE_MS] = self.slope_ms
         f[_O_CONFIRM_NSIG] = self.confirm_window_sigmas
         i = np.zeros(_N_IOPT, dtype=np.int64)
         i[_I_UT_MIN] = self.ut_min_hits
@@ -242,6 +260,8 @@ class ForwardOptions:
         i[_I_MAX_NODES] = self.max_nodes
         i[_I_QUAD] = int(self.quadratic_continuation)
         i[_I_STATION_X] = int(self.station_x_and_stereo)
+        i[_I_UT_CANDIDATES] = self.ut_candidates
+        i[_I_STEREO_CANDIDATES] = self.stereo_candidates
         return f, i
 
 
@@ -340,34 +360,23 @@ def _velo_prior(opt, q_noise, sigma_q, P):
 
 
 @nb.njit(cache=True)
-def _reference(ext, poly, ref, quad, a, f_layer, j_end, s_v, q, q_noise, ref_s, ref_F, ref_Q, work):
+def _reference(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_v, q, q_noise, ref_s, ref_F, ref_Q,
+               work):
     """Reference trajectory from VELO layer a through forward layers 0 … j_end−1 at
     q/p = q; noise at q_noise. Returns the worst transport status."""
-    status = 0
     s_in = work[0, 0]
     for i in range(4):
         s_in[i] = s_v[i]
     s_in[4] = q
-    cur = a
-    tw = work[1:]
-    for j in range(j_end):
-        st = transport(ext, poly, ref, quad, cur, f_layer[j], s_in, q_noise, ref_s[j], ref_F[j],
-                       ref_Q[j], tw)
-        if st == TRANSPORT_FAILED:
-            return st
-        if st > status:
-            status = st
-        for i in range(5):
-            s_in[i] = ref_s[j, i]
-        cur = f_layer[j]
-    return status
+    return reference_trajectory(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_in, q_noise, ref_s,
+                                ref_F, ref_Q, work[0, 1])
 
 
 @nb.njit(cache=True)
 def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, pm_value, pm_var,
             nsig, first_branches, max_branch, max_skip, min_hits, skip_first, need, chi2_prune,
-            max_nodes, ws, best_path, best_x, best_P):
+            max_nodes, ws, best_path, best_x, best_P, top, miss_penalty):
     """Depth-first combinatorial Kalman filter over forward layers j0 … j1−1.
 
     mode[j]: _MODE_SEARCH (hits in the window, up to first_branches / max_branch by
@@ -380,9 +389,15 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
     the group ending at j must be present (f_need_end[j] mask). need: bits required at
     the end. Returns (n_search_hits, n_fixed_hits, chi2) of the best leaf (most search
     hits, then lowest χ²) with best_path[j] (sorted-hit index or −1) and the deviation
-    state/covariance at layer j1−1 in best_x/best_P; n = −1 if none.
+    state/covariance at layer j1−1 in best_x/best_P; n = −1 if none. top = (paths (K, ·),
+    n (K), chi2 (K), q-deviation (K), its variance (K), count (1)): the K best leaves
+    (K = 0: not collected), ranked like the best. Ranking: χ² − miss_penalty·(search hits),
+    lowest first (a large penalty: most hits first, then χ²).
     """
     nd = j1 - j0
+    top_paths, top_n, top_chi, top_dq, top_var, top_count = top
+    n_top_max = top_n.shape[0]
+    top_count[0] = 0
     (pred_x, post_x, pred_P, post_P, tmp, pht, upred, sbase, post_chi, ch_chi, n_ch, it, post_n,
      post_nf, post_skip, post_mask, post_att, path, ch_hit) = ws
     best_n = -1
@@ -527,7 +542,7 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
             else:
                 post_n[d] = prev_n
                 post_nf[d] = prev_nf + 1
-                post_mask[d] = prev_mask
+                post_mask[d] = prev_mask | f_bit[j]
                 post_att[d] = prev_att
             post_skip[d] = prev_skip
         else:
@@ -550,7 +565,8 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
             continue
         if d == nd - 1:
             if post_n[d] >= min_hits and (post_mask[d] & need) == need:
-                better = post_n[d] > best_n or (post_n[d] == best_n and post_chi[d] < best_chi)
+                key = post_chi[d] - miss_penalty * post_n[d]
+                better = best_n < 0 or key < best_chi - miss_penalty * best_n
                 if better:
                     best_n = post_n[d]
                     best_nf = post_nf[d]
@@ -561,6 +577,28 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
                         best_x[i] = post_x[d, i]
                         for m in range(5):
                             best_P[i, m] = post_P[d, i, m]
+                if n_top_max > 0:
+                    nt = top_count[0]
+                    pos = nt
+                    while pos > 0 and key < top_chi[pos - 1] - miss_penalty * top_n[pos - 1]:
+                        pos -= 1
+                    if pos < n_top_max:
+                        last = min(nt, n_top_max - 1)
+                        for q_ in range(last, pos, -1):
+                            top_n[q_] = top_n[q_ - 1]
+                            top_chi[q_] = top_chi[q_ - 1]
+                            top_dq[q_] = top_dq[q_ - 1]
+                            top_var[q_] = top_var[q_ - 1]
+                            for k in range(nd):
+                                top_paths[q_, j0 + k] = top_paths[q_ - 1, j0 + k]
+                        top_n[pos] = post_n[d]
+                        top_chi[pos] = post_chi[d]
+                        top_dq[pos] = post_x[d, 4]
+                        top_var[pos] = post_P[d, 4, 4]
+                        for k in range(nd):
+                            top_paths[pos, j0 + k] = path[k]
+                        if nt < n_top_max:
+                            top_count[0] = nt + 1
             continue
         d += 1
         expand = True
@@ -569,76 +607,50 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
 
 @nb.njit(cache=True, inline="always")
 def _t_of_q(q, tau0, tau1):
-    """Hough coordinate in units of the local tolerance τ(q) = τ0 + τ1·|q|."""
-    if tau1 <= 0.0:
-        return q / tau0
+    """Hough coordinate of q/p in units of the local tolerance τ(q) = τ0 + τ1·|q|."""
     t = math.log1p(tau1 * abs(q) / tau0) / tau1
     return t if q >= 0.0 else -t
 
 
 @nb.njit(cache=True, inline="always")
-def _hermite(x0, x1, d0, d1, h, t):
-    t2 = t * t
-    t3 = t2 * t
-    v = (2 * t3 - 3 * t2 + 1) * x0 + (t3 - 2 * t2 + t) * h * d0 + (-2 * t3 + 3 * t2) * x1 + (t3 - t2) * h * d1
-    dv = ((6 * t2 - 6 * t) * x0 + (3 * t2 - 4 * t + 1) * h * d0 + (-6 * t2 + 6 * t) * x1
-          + (3 * t2 - 2 * t) * h * d1) / h
-    return v, dv
+def _q_of_t(t, tau0, tau1):
+    q = tau0 * math.expm1(tau1 * abs(t)) / tau1
+    return q if t >= 0.0 else -q
 
 
-@nb.njit(cache=True)
-def _node_value(qn, xs, dxs, li, q):
-    """Hermite interpolation of x(q) on layer li at q (linear beyond the ends)."""
-    k_last = qn.shape[0] - 1
+@nb.njit(cache=True, inline="always")
+def _hermite(x0, x1, d0, d1, h, u):
+    """Cubic Hermite interpolation on [x0, x1] (length h, derivatives d0, d1) at u ∈ [0, 1]."""
+    u2 = u * u
+    u3 = u2 * u
+    return ((2 * u3 - 3 * u2 + 1) * x0 + (u3 - 2 * u2 + u) * h * d0 + (-2 * u3 + 3 * u2) * x1
+            + (u3 - u2) * h * d1)
+
+
+@nb.njit(cache=True, inline="always")
+def _node_interp(qn, n_nodes, vals, ders, col, q):
+    """x(q) on SciFi layer `col` by cubic Hermite interpolation of the nodes (linear
+    outside) and dx/dq by linear interpolation of the node derivatives."""
     if q <= qn[0]:
-        return xs[0, li] + dxs[0, li] * (q - qn[0]), dxs[0, li]
+        return vals[0, col] + ders[0, col] * (q - qn[0]), ders[0, col]
+    k_last = n_nodes - 1
     if q >= qn[k_last]:
-        return xs[k_last, li] + dxs[k_last, li] * (q - qn[k_last]), dxs[k_last, li]
+        return vals[k_last, col] + ders[k_last, col] * (q - qn[k_last]), ders[k_last, col]
     k = 0
     while k < k_last - 1 and qn[k + 1] <= q:
         k += 1
     h = qn[k + 1] - qn[k]
-    return _hermite(xs[k, li], xs[k + 1, li], dxs[k, li], dxs[k + 1, li], h, (q - qn[k]) / h)
+    u = (q - qn[k]) / h
+    v = _hermite(vals[k, col], vals[k + 1, col], ders[k, col], ders[k + 1, col], h, u)
+    return v, ders[k, col] + u * (ders[k + 1, col] - ders[k, col])
 
 
-@nb.njit(cache=True)
-def _implied_q(qn, xs, dxs, li, u, increasing):
-    """Invert x(q) = u on layer li (monotone): binary search of the node interval, then
-    Newton on its cubic; linear beyond the end nodes."""
-    k_last = qn.shape[0] - 1
-    first = xs[0, li]
-    last = xs[k_last, li]
-    if (u <= first) == increasing:
-        dd = dxs[0, li]
-        return qn[0] + (u - first) / dd if dd != 0.0 else qn[0]
-    if (u >= last) == increasing:
-        dd = dxs[k_last, li]
-        return qn[k_last] + (u - last) / dd if dd != 0.0 else qn[k_last]
-    a = 0
-    b = k_last
-    while b - a > 1:
-        mid = (a + b) >> 1
-        if (xs[mid, li] <= u) == increasing:
-            a = mid
-        else:
-            b = mid
-    h = qn[b] - qn[a]
-    x0 = xs[a, li]
-    x1 = xs[b, li]
-    t = (u - x0) / (x1 - x0) if x1 != x0 else 0.5
-    for _ in range(3):
-        v, dv = _hermite(x0, x1, dxs[a, li], dxs[b, li], h, t)
-        if dv == 0.0:
-            break
-        t -= (v - u) / (dv * h)
-        if t < 0.0:
-            t = 0.0
-        elif t > 1.0:
-            t = 1.0
-    return qn[a] + t * h
+@nb.njit(cache=True, inline="always")
+def _pvalue_ok(chi2, n_meas, cut):
+    return chi2 <= cut[min(n_meas, cut.shape[0] - 1)]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _popcount(m):
     n = 0
     while m:
@@ -647,64 +659,505 @@ def _popcount(m):
     return n
 
 
+@nb.njit(cache=True, inline="always")
+def _conditional(P, pc, k):
+    """Covariance of (x, tx) and (y, ty) given q/p: pc[k … k+5] = xx, x·tx, tx·tx, yy, y·ty, ty·ty."""
+    pc[k] = P[0, 0] - P[0, 4] ** 2 / P[4, 4]
+    pc[k + 1] = P[0, 2] - P[0, 4] * P[2, 4] / P[4, 4]
+    pc[k + 2] = P[2, 2] - P[2, 4] ** 2 / P[4, 4]
+    pc[k + 3] = P[1, 1] - P[1, 4] ** 2 / P[4, 4]
+    pc[k + 4] = P[1, 3] - P[1, 4] * P[3, 4] / P[4, 4]
+    pc[k + 5] = P[3, 3] - P[3, 4] ** 2 / P[4, 4]
+
+
 @nb.njit(cache=True)
-def _extend_kernel(ext, poly, tref, f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end,
-                   sf_need, x_layers, x_fwd, x_station_bit, x_station_need, n_ut,
-                   t_ev, t_state, t_layer, lay_off, hu, hsig, opt, iopt, ut_prune, sf_prune,
-                   final_cut, max_entries, max_bins,
-                   out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf):
+def _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs, sdxs,
+                  sys_, sdys, q_c, alpha, beta, z0, sig2, pc, z_ut, nsig):
+    """Stereo confirmation of a q/p cluster: on every SciFi stereo layer the nearest hit
+    to u = x·cos α + y·sin α, with x from the cluster's line and y from the VELO prior
+    given q/p (σ_y: the conditional covariance pc carried by a straight line). Returns
+    (Σ min(Δχ², nsig²) over the stereo layers, number of layers with a hit within nsig σ)."""
+    score = 0.0
+    n_found = 0
+    q2 = q_c * q_c
+    for j in range(n_ut, n_fwd):
+        c = f_cos[j]
+        s = f_sin[j]
+        if abs(s) < 1e-6:
+            continue
+        col = j - n_ut
+        x_ref, _ = _node_interp(qn, n_nodes, sxs, sdxs, col, q_c)
+        y_ref, _ = _node_interp(qn, n_nodes, sys_, sdys, col, q_c)
+        x = x_ref + alpha + beta * (f_z[j] - z0)
+        dz = f_z[j] - z_ut
+        vy = (pc[3] + pc[9] * q2) + 2.0 * dz * (pc[4] + pc[10] * q2) + dz * dz * (pc[5] + pc[11] * q2)
+        var = s * s * max(vy, 0.0) + c * c * sig2 + f_sig[j] * f_sig[j]
+        up = c * x + s * y_ref
+        hw = nsig * math.sqrt(var)
+        lo = loe[j]
+        hi = loe[j + 1]
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if hu[mid] < up - hw:
+                lo = mid + 1
+            else:
+                hi = mid
+        best = nsig * nsig
+        h = lo
+        while h < loe[j + 1] and hu[h] <= up + hw:
+            c2 = (hu[h] - up) ** 2 / var
+            if c2 < best:
+                best = c2
+            h += 1
+        if best < nsig * nsig:
+            n_found += 1
+        score += best
+    return score, n_found
+
+
+@nb.njit(cache=True)
+def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z, sig2, w_beta, chosen,
+                 rx):
+    """Straight-line test of a q/p cluster in the SciFi x layers.
+
+    The entries kb … ke−1 (in e_order) are hits (e_hit) on x layer e_li; their x residual
+    to the trajectory at the cluster's q/p is rx = u − x_c[layer] (lin=False, x_c: the
+    interpolated trajectory) or, to first order, (t − t_c)·x_c[layer] (lin=True, x_c:
+    τ(q_c)·dx/dq; cheaper, for ranking). One entry per layer
+    (nearest to the trajectory, then nearest to the line) is fitted with rx = α + β·(z − z_0), β ~ N(0, 1/w_beta):
+    given q/p the VELO state predicts the direction in the SciFi, random coincidences of
+    implied q/p have random directions and do not line up. Returns (n_layers, χ², α, β).
+    """
+    for li in range(n_x):
+        chosen[li] = -1
+        rx[li] = 1e300
+    for kk in range(kb, ke):
+        ent = e_order[kk]
+        li = e_li[ent]
+        r = (e_t[ent] - t_c) * x_c[li] if lin else hu[e_hit[ent]] - x_c[li]
+        if abs(r) < abs(rx[li]):
+            rx[li] = r
+            chosen[li] = ent
+    alpha = 0.0
+    chi2 = 0.0
+    n = 0
+    for iteration in range(2):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        r0 = 0.0
+        r1 = 0.0
+        n = 0
+        for li in range(n_x):
+            if chosen[li] < 0:
+                continue
+            dz = x_z[li] - x_z[0]
+            s0 += 1.0
+            s1 += dz
+            s2 += dz * dz
+            r0 += rx[li]
+            r1 += rx[li] * dz
+            n += 1
+        if n == 0:
+            return 0, 0.0, 0.0, 0.0
+        s2 += w_beta * sig2
+        det = s0 * s2 - s1 * s1
+        alpha = (s2 * r0 - s1 * r1) / det
+        beta = (s0 * r1 - s1 * r0) / det
+        chi2 = beta * beta * w_beta
+        for li in range(n_x):
+            if chosen[li] >= 0:
+                res = rx[li] - alpha - beta * (x_z[li] - x_z[0])
+                chi2 += res * res / sig2
+        if iteration == 0:
+            # re-choose on every layer the entry nearest to the line
+            for li in range(n_x):
+                rx[li] = 1e300
+            for kk in range(kb, ke):
+                ent = e_order[kk]
+                li = e_li[ent]
+                r = (e_t[ent] - t_c) * x_c[li] if lin else hu[e_hit[ent]] - x_c[li]
+                pred = alpha + beta * (x_z[li] - x_z[0])
+                if abs(r - pred) < abs(rx[li] - pred):
+                    rx[li] = r
+                    chosen[li] = ent
+    return n, chi2, alpha, beta
+
+
+@nb.njit(cache=True)
+def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, s0, ds0, pc, q_lo,
+                  q_hi, W, cand):
+    """Steps 2–3: q/p scan of the SciFi x layers over [q_lo, q_hi], then the combinatorial
+    KF from the best clusters. s0/ds0: state at the last UT layer given q/p (conditional
+    mean, s0[4] its q/p) and its derivative; pc = (σx², σxtx, σtx² at q/p = 0, the same
+    ∝ (q/p)² per (1/MeV)²): the conditional covariance at the last UT layer.
+
+    cand = (paths (M, n_fwd), n_sf (M), χ² (M), q (M), var (M), count (1)): the SciFi
+    candidates, best first (χ² − miss_penalty·hits).
+    """
+    (f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
+     x_station_bit, x_station_need, n_ut) = geo
+    ut_prune, sf_prune, final_cut = cuts
+    (ref_s, ref_F, ref_Q, work, ws, path, mode, fixed, x0, P0, bx, bP, qn, sxs, sdxs, sys_, sdys,
+     nx_x, nx_q, nx_dq, e_t, e_bin, e_li, e_hit, e_order, bin_count, bin_start, cl_bin, cl_npop,
+     cl_key, chosen, rx, x_z, d_l, x_z_all, top) = W
+    c_paths, c_n, c_chi, c_q, c_var, c_count = cand
+    c_count[0] = 0
     n_fwd = f_layer.shape[0]
     n_x = x_layers.shape[0]
-    quad = iopt[_I_QUAD] != 0
-    qmax = opt[_O_QMAX]
     tau0 = opt[_O_TAU0]
     tau1 = opt[_O_TAU1]
-    # workspaces
-    ref_s = np.zeros((n_fwd, 5))
-    ref_F = np.zeros((n_fwd, 5, 5))
-    ref_Q = np.zeros((n_fwd, 5, 5))
-    work = np.zeros((6, 5, 5))
-    ws = (np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5)),
-          np.zeros((5, 5)), np.zeros(5), np.zeros(n_fwd), np.zeros(n_fwd), np.zeros(n_fwd),
-          np.zeros((n_fwd, _MAX_CHILDREN)), np.zeros(n_fwd, dtype=np.int64),
+    nsig = opt[_O_NSIG]
+    miss = opt[_O_MISS]
+    max_entries = e_t.shape[0]
+    max_bins = bin_count.shape[0] - 1
+    if not q_hi > q_lo:
+        return 0
+    table_localize(ext.uts_meta, ext.uts_coef, s0[0], s0[1], poly, tref)
+    n_nodes = int(math.ceil((q_hi - q_lo) / opt[_O_NODE_DW])) + 1
+    n_nodes = min(max(n_nodes, 2), qn.shape[0])
+    for k in range(n_nodes):
+        qn[k] = q_lo + (q_hi - q_lo) * k / (n_nodes - 1)
+    st = scan_states(ext, poly, tref, quad, f_layer[n_ut - 1], f_layer[n_ut:], s0, ds0, qn[:n_nodes],
+                     sxs, sdxs, sys_, sdys, work)
+    if st == TRANSPORT_FAILED:
+        return 0
+    if iopt[_I_MAX_NODES] == 1:
+        return 0
+    # ---- Hough coordinate t of every x-layer hit in the covered range: its implied q/p by
+    # cubic Hermite interpolation of q(x) between the nodes (x is monotone in q/p; the hits
+    # are visited in order of x, so the node interval only moves forward)
+    t_lo = _t_of_q(q_lo, tau0, tau1)
+    n_bins = min(int(_t_of_q(q_hi, tau0, tau1) - t_lo) + 1, max_bins)
+    q_rms = max(abs(q_lo), abs(q_hi))
+    pcxx = pc[0] + pc[6] * q_rms * q_rms
+    pcxt = pc[1] + pc[7] * q_rms * q_rms
+    pctt = pc[2] + pc[8] * q_rms * q_rms
+    z_ut = ext.layer_z[f_layer[n_ut - 1]]
+    f_z = x_z_all
+    for j in range(n_fwd):
+        f_z[j] = ext.layer_z[f_layer[j]]
+    n_e = 0
+    for li in range(n_x):
+        col = x_fwd[li] - n_ut
+        x_z[li] = ext.layer_z[x_layers[li]]
+        inc = sxs[n_nodes - 1, col] >= sxs[0, col]
+        for k in range(n_nodes):
+            kk = k if inc else n_nodes - 1 - k
+            nx_x[li, k] = sxs[kk, col]
+            nx_q[li, k] = qn[kk]
+            dxdq = sdxs[kk, col]
+            nx_dq[li, k] = 1.0 / dxdq if dxdq != 0.0 else 0.0
+        dz = x_z[li] - z_ut
+        var = max(pcxx + 2.0 * dz * pcxt + dz * dz * pctt, 0.0) + f_sig[x_fwd[li]] ** 2
+        margin = nsig * math.sqrt(var) + 1.0
+        x_min = nx_x[li, 0] - margin
+        x_max = nx_x[li, n_nodes - 1] + margin
+        lo = loe[x_fwd[li]]
+        hi = loe[x_fwd[li] + 1]
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if hu[mid] < x_min:
+                lo = mid + 1
+            else:
+                hi = mid
+        h = lo
+        hi = loe[x_fwd[li] + 1]
+        seg = 0
+        while h < hi and hu[h] <= x_max and n_e < max_entries:
+            x = hu[h]
+            while seg < n_nodes - 2 and x > nx_x[li, seg + 1]:
+                seg += 1
+            if x <= nx_x[li, 0]:
+                q = nx_q[li, 0] + nx_dq[li, 0] * (x - nx_x[li, 0])
+            elif x >= nx_x[li, n_nodes - 1]:
+                q = nx_q[li, n_nodes - 1] + nx_dq[li, n_nodes - 1] * (x - nx_x[li, n_nodes - 1])
+            else:
+                hx = nx_x[li, seg + 1] - nx_x[li, seg]
+                q = _hermite(nx_q[li, seg], nx_q[li, seg + 1], nx_dq[li, seg], nx_dq[li, seg + 1], hx,
+                             (x - nx_x[li, seg]) / hx) if hx > 0.0 else nx_q[li, seg]
+            t = _t_of_q(q, tau0, tau1)
+            tb = t - t_lo
+            if 0.0 <= tb < n_bins:
+                e_t[n_e] = t
+                e_bin[n_e] = int(tb)
+                e_li[n_e] = li
+                e_hit[n_e] = h
+                n_e += 1
+            h += 1
+    if iopt[_I_MAX_NODES] == 2:
+        return n_e
+    # ---- counting sort of the entries by bin
+    for k in range(n_e):
+        bin_count[e_bin[k]] += 1
+    bin_start[0] = 0
+    for b in range(n_bins):
+        bin_start[b + 1] = bin_start[b] + bin_count[b]
+    for k in range(n_e):
+        bin_count[e_bin[k]] = 0
+    for k in range(n_e):
+        b = e_bin[k]
+        e_order[bin_start[b] + bin_count[b]] = k
+        bin_count[b] += 1
+    for k in range(n_e):
+        bin_count[e_bin[k]] = 0
+    if iopt[_I_MAX_NODES] == 3:
+        return n_e
+    # ---- clusters: windows of two bins starting at every occupied bin; kept if they have
+    # enough x layers (≥ 1 per station) and no overlapping window has more
+    n_cl = 0
+    k = 0
+    while k < n_e:
+        b = e_bin[e_order[k]]
+        end = bin_start[min(b + 2, n_bins)]
+        mask = 0
+        for kk in range(k, end):
+            mask |= 1 << e_li[e_order[kk]]
+        npop = _popcount(mask)
+        if iopt[_I_STATION_X] != 0:
+            smask = 0
+            for li in range(n_x):
+                if mask & (1 << li):
+                    smask |= x_station_bit[li]
+            if smask != x_station_need:
+                npop = 0
+        cl_bin[n_cl] = b
+        cl_npop[n_cl] = npop
+        n_cl += 1
+        k = bin_start[b + 1]
+    n_keep = 0
+    for c_ in range(n_cl):
+        npop = cl_npop[c_]
+        if npop < iopt[_I_MIN_X]:
+            continue
+        if c_ > 0 and cl_bin[c_ - 1] == cl_bin[c_] - 1 and cl_npop[c_ - 1] > npop:
+            continue
+        if c_ + 1 < n_cl and cl_bin[c_ + 1] == cl_bin[c_] + 1 and cl_npop[c_ + 1] > npop:
+            continue
+        cl_bin[n_keep] = cl_bin[c_]
+        cl_npop[n_keep] = npop
+        n_keep += 1
+    n_cl = n_keep
+    # ---- straight-line test of every cluster (key: its χ², nsig² per missing x layer), then
+    # the stereo confirmation of the best few (key += Σ stereo Δχ²; lower is better)
+    ms = opt[_O_LINE_MS]
+    for c_ in range(n_cl):
+        b = cl_bin[c_]
+        t_c = t_lo + b + 1.0
+        q_c = _q_of_t(t_c, tau0, tau1)
+        tau_c = tau0 + tau1 * abs(q_c)
+        k = 0
+        while k < n_nodes - 2 and qn[k + 1] <= q_c:
+            k += 1
+        u = min(max((q_c - qn[k]) / (qn[k + 1] - qn[k]), 0.0), 1.0)
+        for li in range(n_x):
+            col = x_fwd[li] - n_ut
+            d_l[li] = tau_c * (sdxs[k, col] + u * (sdxs[k + 1, col] - sdxs[k, col]))
+        sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
+        w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
+        nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + 2, n_bins)], e_hit, e_t,
+                                               e_li, e_order, hu, n_x, d_l, True, t_c, x_z, sig2, w_beta,
+                                               chosen, rx)
+        if nl_ < iopt[_I_MIN_X] or chi2l > opt[_O_LINE_CHI2] * max(nl_ - 1, 1):
+            cl_key[c_] = 1e300
+        else:
+            cl_key[c_] = chi2l + nsig * nsig * (n_x - nl_)
+    n_conf = 0
+    while n_conf < iopt[_I_STEREO_CANDIDATES]:
+        best = -1
+        for c_ in range(n_cl):
+            if cl_key[c_] < 1e299 and cl_npop[c_] >= 0 and (best < 0 or cl_key[c_] < cl_key[best]):
+                best = c_
+        if best < 0:
+            break
+        n_conf += 1
+        cl_npop[best] = -cl_npop[best] - 1  # mark as confirmed
+        b = cl_bin[best]
+        q_c = _q_of_t(t_lo + b + 1.0, tau0, tau1)
+        for li in range(n_x):
+            d_l[li], _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[li] - n_ut, q_c)
+        sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
+        w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
+        nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + 2, n_bins)], e_hit, e_t,
+                                               e_li, e_order, hu, n_x, d_l, False, 0.0, x_z, sig2, w_beta,
+                                               chosen, rx)
+        sscore, _ = _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs,
+                                  sdxs, sys_, sdys, q_c, alpha, beta, x_z[0], sig2, pc, z_ut, nsig)
+        cl_key[best] += sscore
+    for c_ in range(n_cl):
+        if cl_npop[c_] >= 0:
+            cl_key[c_] = 1e300  # not confirmed: not followed
+    # ---- follow the best clusters with the combinatorial KF (VELO prior, UT layers off)
+    pm_depth = x_fwd[0]
+    n_follow = 0
+    while n_follow < iopt[_I_MAX_CLUSTERS]:
+        best = -1
+        for c_ in range(n_cl):
+            if cl_key[c_] < 1e299 and (best < 0 or cl_key[c_] < cl_key[best]):
+                best = c_
+        if best < 0:
+            break
+        cl_key[best] = 1e300
+        n_follow += 1
+        b = cl_bin[best]
+        kb = bin_start[b]
+        ke = bin_start[min(b + 2, n_bins)]
+        t_c = t_lo + b + 1.0
+        q_c = _q_of_t(t_c, tau0, tau1)
+        tau_c = tau0 + tau1 * abs(q_c)
+        for li in range(n_x):
+            d_l[li], _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[li] - n_ut, q_c)
+        sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
+        w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
+        nl_, chi2l, alpha, beta = _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, d_l, False,
+                                               0.0, x_z, sig2, w_beta, chosen, rx)
+        # refined q/p: mean Hough coordinate of the chosen entries
+        ts = 0.0
+        for li in range(n_x):
+            if chosen[li] >= 0:
+                ts += e_t[chosen[li]]
+        q_c = _q_of_t(ts / nl_, tau0, tau1)
+        # pseudo-measurement at the first x layer: its cluster hit, else the line
+        if chosen[0] >= 0:
+            xpm = hu[e_hit[chosen[0]]]
+            pm_var = opt[_O_PM_FLOOR] ** 2
+        else:
+            x_first, _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[0] - n_ut, q_c)
+            xpm = x_first + alpha
+            pm_var = sig2 + opt[_O_PM_FLOOR] ** 2
+        st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_c, abs(q_c), ref_s,
+                        ref_F, ref_Q, work)
+        if st == TRANSPORT_FAILED:
+            continue
+        for j in range(n_fwd):
+            mode[j] = _MODE_OFF if j < n_ut else _MODE_SEARCH
+        for i in range(4):
+            x0[i] = 0.0
+        x0[4] = -q_c
+        _velo_prior(opt, abs(q_c), opt[_O_WEAK_QPRIOR], P0)
+        n_sf, _, chi_c = _search(
+            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, xpm, pm_var,
+            nsig, iopt[_I_BRANCH], iopt[_I_BRANCH], n_fwd - n_ut - iopt[_I_SF_MIN],
+            iopt[_I_SF_MIN], False, sf_need, sf_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top, miss)
+        if n_sf < 0:
+            continue
+        # insert into the candidate list (best first), dropping duplicates
+        key = chi_c - miss * n_sf
+        dup = False
+        for c2 in range(c_count[0]):
+            same = True
+            for j in range(n_ut, n_fwd):
+                if c_paths[c2, j] != path[j]:
+                    same = False
+                    break
+            if same:
+                dup = True
+                break
+        if dup:
+            continue
+        nc = c_count[0]
+        pos = nc
+        while pos > 0 and key < c_chi[pos - 1] - miss * c_n[pos - 1]:
+            pos -= 1
+        if pos >= c_n.shape[0]:
+            continue
+        for q_ in range(min(nc, c_n.shape[0] - 1), pos, -1):
+            c_n[q_] = c_n[q_ - 1]
+            c_chi[q_] = c_chi[q_ - 1]
+            c_q[q_] = c_q[q_ - 1]
+            c_var[q_] = c_var[q_ - 1]
+            for j in range(n_fwd):
+                c_paths[q_, j] = c_paths[q_ - 1, j]
+        c_n[pos] = n_sf
+        c_chi[pos] = chi_c
+        c_q[pos] = ref_s[n_fwd - 1, 4] + bx[4]
+        c_var[pos] = bP[4, 4]
+        for j in range(n_fwd):
+            c_paths[pos, j] = path[j]
+        if nc < c_n.shape[0]:
+            c_count[0] = nc + 1
+    return c_count[0]
+
+
+@nb.njit(cache=True)
+def _workspace(n_fwd, n_sf, n_x, max_nodes_q, max_entries, max_bins, n_cand):
+    """Scratch arrays of one kernel call (reused by every track)."""
+    top_none = (np.zeros((0, n_fwd), dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0),
+                np.zeros(0), np.zeros(0), np.zeros(1, dtype=np.int64))
+    ws = (np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)),
+          np.zeros((n_fwd, 5, 5)), np.zeros((5, 5)), np.zeros(5), np.zeros(n_fwd), np.zeros(n_fwd),
+          np.zeros(n_fwd), np.zeros((n_fwd, _MAX_CHILDREN)), np.zeros(n_fwd, dtype=np.int64),
           np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
           np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
           np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
           np.zeros(n_fwd, dtype=np.int64), np.zeros((n_fwd, _MAX_CHILDREN), dtype=np.int64))
-    path = np.full(n_fwd, -1, dtype=np.int64)
-    ut_path = np.full(n_fwd, -1, dtype=np.int64)
-    sf_path = np.full(n_fwd, -1, dtype=np.int64)
-    cand_path = np.full(n_fwd, -1, dtype=np.int64)
-    fixed = np.full(n_fwd, -1, dtype=np.int64)
-    mode = np.zeros(n_fwd, dtype=np.int64)
-    bx = np.zeros(5)
-    bP = np.zeros((5, 5))
-    ut_x = np.zeros(5)
-    ut_P = np.zeros((5, 5))
-    cx = np.zeros(5)
-    cP = np.zeros((5, 5))
-    x0 = np.zeros(5)
-    P0 = np.zeros((5, 5))
+    W = (np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((6, 5, 5)),
+         ws, np.full(n_fwd, -1, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
+         np.full(n_fwd, -1, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(5),
+         np.zeros((5, 5)), np.zeros(max_nodes_q), np.zeros((max_nodes_q, n_sf)),
+         np.zeros((max_nodes_q, n_sf)), np.zeros((max_nodes_q, n_sf)), np.zeros((max_nodes_q, n_sf)),
+         np.zeros((n_x, max_nodes_q)), np.zeros((n_x, max_nodes_q)), np.zeros((n_x, max_nodes_q)),
+         np.zeros(max_entries), np.zeros(max_entries, dtype=np.int64),
+         np.zeros(max_entries, dtype=np.int64), np.zeros(max_entries, dtype=np.int64),
+         np.zeros(max_entries, dtype=np.int64),
+         np.zeros(max_bins + 1, dtype=np.int64), np.zeros(max_bins + 2, dtype=np.int64),
+         np.zeros(max_entries + 1, dtype=np.int64), np.zeros(max_entries + 1, dtype=np.int64),
+         np.zeros(max_entries + 1),
+         np.full(n_x, -1, dtype=np.int64), np.zeros(n_x), np.zeros(n_x), np.zeros(n_x),
+         np.zeros(n_fwd), top_none)
+    cand = (np.full((n_cand, n_fwd), -1, dtype=np.int64), np.zeros(n_cand, dtype=np.int64),
+            np.zeros(n_cand), np.zeros(n_cand), np.zeros(n_cand), np.zeros(1, dtype=np.int64))
+    return W, top_none, cand
+
+
+@nb.njit(cache=True)
+def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hsig, opt, iopt, cuts,
+                   good_cut, max_entries, max_bins, out):
+    (f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
+     x_station_bit, x_station_need, n_ut) = geo
+    ut_prune, sf_prune, final_cut = cuts
+    out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf = out
+    ut_cut = good_cut[1]
+    good_cut = good_cut[0]
+    n_fwd = f_layer.shape[0]
+    n_x = x_layers.shape[0]
+    quad = iopt[_I_QUAD] != 0
+    qmax = opt[_O_QMAX]
+    n_utc_max = iopt[_I_UT_CANDIDATES]
+    max_nodes_q = int(math.ceil(2.0 * qmax / opt[_O_NODE_DW])) + 2
+    W, top_none, cand = _workspace(n_fwd, n_fwd - n_ut, n_x, max_nodes_q, max_entries, max_bins,
+                                   iopt[_I_MAX_CLUSTERS])
+    ref_s = W[0]
+    ref_F = W[1]
+    ref_Q = W[2]
+    work = W[3]
+    ws = W[4]
+    path = W[5]
+    mode = W[6]
+    fixed = W[7]
+    x0 = W[8]
+    P0 = W[9]
+    bx = W[10]
+    bP = W[11]
+    c_paths, c_n, c_chi, c_q, c_var, c_count = cand
+    top_ut = (np.zeros((n_utc_max, n_fwd), dtype=np.int64), np.zeros(n_utc_max, dtype=np.int64),
+              np.zeros(n_utc_max), np.zeros(n_utc_max), np.zeros(n_utc_max), np.zeros(1, dtype=np.int64))
     s_v = np.zeros(5)
     s0 = np.zeros(5)
     ds0 = np.zeros(5)
-    max_nodes_q = int(math.ceil(2.0 * qmax / opt[_O_NODE_DW])) + 2
-    qn = np.zeros(max_nodes_q)
-    xs = np.zeros((max_nodes_q, n_x))
-    dxs = np.zeros((max_nodes_q, n_x))
-    ys = np.zeros((max_nodes_q, n_x))
-    dys = np.zeros((max_nodes_q, n_x))
-    e_q = np.zeros(max_entries)
-    e_bin = np.zeros(max_entries, dtype=np.int64)
-    e_li = np.zeros(max_entries, dtype=np.int64)
-    e_order = np.zeros(max_entries, dtype=np.int64)
-    bin_count = np.zeros(max_bins + 1, dtype=np.int64)
-    bin_start = np.zeros(max_bins + 2, dtype=np.int64)
-    cl_bin = np.zeros(64, dtype=np.int64)
-    cl_score = np.zeros(64, dtype=np.int64)
-    n_sf_layers = n_fwd - n_ut
-    nsig = opt[_O_NSIG]
-    ut_nsig = opt[_O_UT_NSIG]
+    pc = np.zeros(12)
+    ut_best = np.full(n_fwd, -1, dtype=np.int64)
+    cx = np.zeros(5)
+    cP = np.zeros((5, 5))
+    best_key = np.zeros(1)
+    r_lo = np.zeros(n_utc_max)
+    r_hi = np.zeros(n_utc_max)
+    u_q = np.zeros(n_utc_max)
+    u_var = np.zeros(n_utc_max)
+    u_chi = np.zeros(n_utc_max)
+    u_n = np.zeros(n_utc_max, dtype=np.int64)
+    u_leaf = np.zeros(n_utc_max, dtype=np.int64)
     for t in range(t_ev.shape[0]):
         e = t_ev[t]
         a = t_layer[t]
@@ -713,12 +1166,6 @@ def _extend_kernel(ext, poly, tref, f_layer, f_cos, f_sin, f_sig, f_bit, f_group
             s_v[i] = t_state[t, i]
         s_v[4] = 0.0
         out_status[t] = STATUS_NOT_FOUND
-        out_q[t] = np.nan
-        out_qvar[t] = np.nan
-        out_chi2[t] = np.nan
-        out_ndf[t] = 0
-        out_nut[t] = 0
-        out_nsf[t] = 0
         for j in range(n_fwd):
             out_hits[t, j] = -1
         ok_state = a >= 0
@@ -728,276 +1175,137 @@ def _extend_kernel(ext, poly, tref, f_layer, f_cos, f_sin, f_sig, f_bit, f_group
         if not ok_state:
             out_status[t] = STATUS_INVALID
             continue
-        # ---------------- 1. UT search around q/p = 0 ----------------
-        st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q, work)
+        # ---- the VELO prior carried through the UT without hits, at the noise of 1/p_min and
+        # without noise: the state at the last UT layer given q/p and its covariance
+        st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, 0.0, ref_s, ref_F,
+                        ref_Q, work)
         if st == TRANSPORT_FAILED:
             out_status[t] = STATUS_INVALID
             continue
         for j in range(n_fwd):
-            mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
-            ut_path[j] = -1
+            mode[j] = _MODE_OFF
         for i in range(5):
             x0[i] = 0.0
+        _velo_prior(opt, 0.0, opt[_O_WEAK_QPRIOR], P0)
+        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
+                ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+        for i in range(5):
+            s0[i] = ref_s[n_ut - 1, i] + cx[i]
+            ds0[i] = cP[i, 4] / cP[4, 4]
+        _conditional(cP, pc, 0)
+        _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q,
+                   work)
+        _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
+        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
+                ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+        _conditional(cP, pc, 6)
+        for i in range(6):
+            pc[6 + i] = (pc[6 + i] - pc[i]) / (qmax * qmax)
+        # ---- 1. UT search around q/p = 0 (noise of 1/p_min): q/p ranges of its best leaves
+        for j in range(n_fwd):
+            mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
         _velo_prior(opt, qmax, opt[_O_UT_QPRIOR], P0)
-        nb_ut, _, chi_ut = _search(
+        nb_ut, _, _ = _search(
             0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-            ut_nsig, iopt[_I_UT_FIRST], iopt[_I_BRANCH], n_ut - iopt[_I_UT_MIN], iopt[_I_UT_MIN],
-            True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, bx, bP)
-        ut_found = nb_ut >= iopt[_I_UT_MIN]
-        q_ut = 0.0
-        var_ut = 0.0
-        if ut_found:
-            for j in range(n_ut):
-                ut_path[j] = path[j]
-            q_ut = ref_s[n_ut - 1, 4] + bx[4]
-            var_ut = bP[4, 4]
-            # re-fit around the estimate, noise at that q/p
-            qn_ = math.sqrt(q_ut * q_ut + var_ut)
-            st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, s_v, q_ut, min(qn_, qmax), ref_s,
-                            ref_F, ref_Q, work)
-            if st != TRANSPORT_FAILED:
-                for j in range(n_ut):
-                    mode[j] = _MODE_FIXED
-                    fixed[j] = ut_path[j]
-                x0[4] = -q_ut
-                _velo_prior(opt, min(qn_, qmax), opt[_O_WEAK_QPRIOR], P0)
-                nf_, nfx, chi_r = _search(
-                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
-                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-                    ut_nsig, 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, ut_x, ut_P)
-                if nfx >= iopt[_I_UT_MIN]:
-                    q_ut = ref_s[n_ut - 1, 4] + ut_x[4]
-                    var_ut = ut_P[4, 4]
-                    for i in range(5):
-                        s0[i] = ref_s[n_ut - 1, i] + ut_x[i]
-                        ds0[i] = ut_P[i, 4] / ut_P[4, 4]
-                else:
-                    ut_found = False
-            else:
-                ut_found = False
-        # ---------------- 2–4. SciFi: q/p scan, cluster follow-up, fallback ----------------
-        sf_best_n = -1
-        sf_best_chi = 1e300
-        sf_used_ut = False
-        q_best = 0.0
-        var_best = 0.0
-        cond_P = cP
-        for attempt in range(2):
-            use_ut = ut_found and attempt == 0
-            if attempt == 1 and (sf_best_n >= 0 or not ut_found or iopt[_I_FALLBACK] == 0):
-                break
-            if not use_ut:
-                # the VELO prior carried through the UT at q/p = 0 (no hits)
-                st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, s_v, 0.0, qmax, ref_s, ref_F,
-                                ref_Q, work)
-                for j in range(n_ut):
-                    mode[j] = _MODE_OFF
-                for i in range(5):
-                    x0[i] = 0.0
-                _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
-                nf_, nfx, chi_r = _search(
-                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
-                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-                    ut_nsig, 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP)
-                for i in range(5):
-                    s0[i] = ref_s[n_ut - 1, i] + cx[i]
-                    ds0[i] = cP[i, 4] / cP[4, 4]
-                cond_P = cP
-                q_lo = -qmax
-                q_hi = qmax
-            else:
-                cond_P = ut_P
-                width = opt[_O_HOUGH_NSIG] * math.sqrt(var_ut)
-                q_lo = max(q_ut - width, -qmax)
-                q_hi = min(q_ut + width, qmax)
-                if q_hi <= q_lo:
-                    continue
-            # localise the UT→SciFi table at the state at the last UT layer
-            table_localize(ext.uts_meta, ext.uts_coef, s0[0], s0[1], poly, tref)
-            # q/p nodes
-            n_nodes = int(math.ceil((q_hi - q_lo) / opt[_O_NODE_DW])) + 1
-            if n_nodes < 2:
-                n_nodes = 2
-            if n_nodes > max_nodes_q:
-                n_nodes = max_nodes_q
-            for k in range(n_nodes):
-                qn[k] = q_lo + (q_hi - q_lo) * k / (n_nodes - 1)
-            qv = qn[:n_nodes]
-            st = scan_states(ext, poly, tref, quad, f_layer[n_ut - 1], x_layers, s0, ds0, qv,
-                             xs, dxs, ys, dys, work)
-            if st == TRANSPORT_FAILED:
-                continue
-            # implied q/p of every x-layer hit in the covered range (± the conditional
-            # position uncertainty given q/p at the last UT layer, carried by a straight line)
-            t_lo = _t_of_q(q_lo, tau0, tau1)
-            n_bins = int(_t_of_q(q_hi, tau0, tau1) - t_lo) + 1
-            if n_bins > max_bins:
-                n_bins = max_bins
-            pc00 = cond_P[0, 0] - cond_P[0, 4] * cond_P[0, 4] / cond_P[4, 4]
-            pc02 = cond_P[0, 2] - cond_P[0, 4] * cond_P[2, 4] / cond_P[4, 4]
-            pc22 = cond_P[2, 2] - cond_P[2, 4] * cond_P[2, 4] / cond_P[4, 4]
-            n_e = 0
-            for li in range(n_x):
-                jf = x_fwd[li]
-                dzl = ext.layer_z[x_layers[li]] - ext.layer_z[f_layer[n_ut - 1]]
-                vl = pc00 + 2.0 * dzl * pc02 + dzl * dzl * pc22
-                margin = nsig * math.sqrt(max(vl, 0.0) + f_sig[jf] * f_sig[jf]) + 1.0
-                xmin = xs[0, li]
-                xmax = xs[0, li]
-                for k in range(1, n_nodes):
-                    xmin = min(xmin, xs[k, li])
-                    xmax = max(xmax, xs[k, li])
-                increasing = xs[n_nodes - 1, li] >= xs[0, li]
-                lo = loe[jf]
-                hi = loe[jf + 1]
-                a_ = lo
-                b_ = hi
-                while a_ < b_:
-                    mid = (a_ + b_) >> 1
-                    if hu[mid] < xmin - margin:
-                        a_ = mid + 1
-                    else:
-                        b_ = mid
-                h = a_
-                while h < hi and hu[h] <= xmax + margin and n_e < max_entries:
-                    q = _implied_q(qv, xs, dxs, li, hu[h], increasing)
-                    tb = math.floor(_t_of_q(q, tau0, tau1) - t_lo)
-                    if 0.0 <= tb < n_bins:
-                        e_q[n_e] = q
-                        e_bin[n_e] = int(tb)
-                        e_li[n_e] = li
-                        n_e += 1
-                    h += 1
-            # counting sort of the entries by bin (bin_start: n_bins + 1 boundaries)
-            for k in range(n_e):
-                bin_count[e_bin[k]] += 1
-            bin_start[0] = 0
-            for b in range(n_bins):
-                bin_start[b + 1] = bin_start[b] + bin_count[b]
-            for k in range(n_e):
-                bin_count[e_bin[k]] = 0
-            for k in range(n_e):
-                b = e_bin[k]
-                e_order[bin_start[b] + bin_count[b]] = k
-                bin_count[b] += 1
-            for k in range(n_e):
-                bin_count[e_bin[k]] = 0
-            # clusters: windows of two bins with enough x layers (≥ 1 per station)
-            n_cl = 0
-            k = 0
-            while k < n_e:
-                b = e_bin[e_order[k]]
-                end = bin_start[min(b + 2, n_bins)]
-                mask = 0
-                for kk in range(k, end):
-                    mask |= 1 << e_li[e_order[kk]]
-                npop = _popcount(mask)
-                ok = npop >= iopt[_I_MIN_X]
-                if ok and iopt[_I_STATION_X] != 0:
-                    smask = 0
-                    for li in range(n_x):
-                        if mask & (1 << li):
-                            smask |= x_station_bit[li]
-                    ok = smask == x_station_need
-                if ok:
-                    score = npop * 1000 - (end - k)
-                    if n_cl > 0 and b - cl_bin[n_cl - 1] < 2:  # overlaps the previous window
-                        if score > cl_score[n_cl - 1]:
-                            cl_bin[n_cl - 1] = b
-                            cl_score[n_cl - 1] = score
-                    elif n_cl < cl_bin.shape[0]:
-                        cl_bin[n_cl] = b
-                        cl_score[n_cl] = score
-                        n_cl += 1
-                k = bin_start[b + 1]  # first entry of the next occupied bin
-
-            # follow the best clusters
-            for rank in range(min(n_cl, iopt[_I_MAX_CLUSTERS])):
-                best = -1
-                for c_ in range(n_cl):
-                    if cl_score[c_] > -1 and (best < 0 or cl_score[c_] > cl_score[best]):
-                        best = c_
-                if best < 0:
-                    break
-                b = cl_bin[best]
-                cl_score[best] = -2
-                # cluster q/p: mean over layers of the entry nearest to the window centre
-                kb = bin_start[b]
-                ke = bin_start[min(b + 2, n_bins)]
-                qsum = 0.0
-                nq = 0
-                for li in range(n_x):
-                    bestd = 1e300
-                    bq = 0.0
-                    for kk in range(kb, ke):
-                        ent = e_order[kk]
-                        if e_li[ent] == li:
-                            dd = abs(_t_of_q(e_q[ent], tau0, tau1) - t_lo - (b + 1.0))
-                            if dd < bestd:
-                                bestd = dd
-                                bq = e_q[ent]
-                    if bestd < 1e300:
-                        qsum += bq
-                        nq += 1
-                q_c = qsum / nq
-                xpm, dxpm = _node_value(qv, xs, dxs, 0, q_c)
-                tol = (tau0 + tau1 * abs(q_c)) * abs(dxpm) * opt[_O_PM_SCALE]
-                pm_var = tol * tol + opt[_O_PM_FLOOR] ** 2
-                st = _reference(ext, poly, tref, quad, a, f_layer, n_fwd, s_v, q_c, abs(q_c), ref_s,
+            opt[_O_UT_NSIG], iopt[_I_UT_FIRST], iopt[_I_BRANCH], n_ut - iopt[_I_UT_MIN],
+            iopt[_I_UT_MIN], True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top_ut, 1e6)
+        n_leaves = top_ut[5][0]
+        q0_ref = ref_s[n_ut - 1, 4]
+        for j in range(n_fwd):
+            ut_best[j] = top_ut[0][0, j] if (n_leaves > 0 and j < n_ut) else -1
+        # re-fit each leaf around its own q/p with the noise at that q/p (the search used the
+        # noise of 1/p_min): its q/p range for the SciFi scan
+        n_utc = 0
+        for c in range(n_leaves):
+            q_c = q0_ref + top_ut[3][c]
+            v_c = top_ut[4][c]
+            chi_c = 1e300
+            n_c = 0
+            for iteration in range(2):
+                q_noise = min(math.sqrt(q_c * q_c + v_c), qmax)
+                st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, q_c, q_noise, ref_s,
                                 ref_F, ref_Q, work)
                 if st == TRANSPORT_FAILED:
-                    continue
-                for j in range(n_fwd):
-                    if j < n_ut:
-                        if use_ut:
-                            mode[j] = _MODE_FIXED
-                            fixed[j] = ut_path[j]
-                        else:
-                            mode[j] = _MODE_OFF
-                    else:
-                        mode[j] = _MODE_SEARCH
+                    n_c = 0
+                    break
+                for j in range(n_ut):
+                    mode[j] = _MODE_FIXED
+                    fixed[j] = top_ut[0][c, j]
                 for i in range(4):
                     x0[i] = 0.0
                 x0[4] = -q_c
-                _velo_prior(opt, abs(q_c), opt[_O_WEAK_QPRIOR], P0)
-                pm_depth = x_fwd[0]
-                n_sf, n_fx, chi_c = _search(
-                    0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
-                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, xpm, pm_var,
-                    nsig, iopt[_I_BRANCH], iopt[_I_BRANCH], n_sf_layers - iopt[_I_SF_MIN],
-                    iopt[_I_SF_MIN], False, sf_need, sf_prune, iopt[_I_MAX_NODES], ws, cand_path, bx, bP)
-
-                if n_sf < 0:
-                    continue
-                if n_sf > sf_best_n or (n_sf == sf_best_n and chi_c < sf_best_chi):
-                    sf_best_n = n_sf
-                    sf_best_chi = chi_c
-                    sf_used_ut = use_ut
-                    for j in range(n_fwd):
-                        sf_path[j] = cand_path[j]
-                    q_best = ref_s[n_fwd - 1, 4] + bx[4]
-                    var_best = bP[4, 4]
+                _velo_prior(opt, q_noise, opt[_O_WEAK_QPRIOR], P0)
+                _, n_c, chi_c = _search(
+                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+                    opt[_O_UT_NSIG], 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx,
+                    cP, top_none, 1e6)
+                if n_c < iopt[_I_UT_MIN]:
+                    break
+                q_c = ref_s[n_ut - 1, 4] + cx[4]
+                v_c = cP[4, 4]
+            if n_c < iopt[_I_UT_MIN] or chi_c > ut_cut[min(n_c, ut_cut.shape[0] - 1)]:
+                continue
+            w_ = opt[_O_HOUGH_NSIG] * math.sqrt(v_c)
+            r_lo[n_utc] = max(q_c - w_, -qmax)
+            r_hi[n_utc] = min(q_c + w_, qmax)
+            u_q[n_utc] = q_c
+            u_var[n_utc] = v_c
+            u_chi[n_utc] = chi_c
+            u_n[n_utc] = n_c
+            u_leaf[n_utc] = c
+            n_utc += 1
+        if n_utc > 0:
+            for j in range(n_ut):
+                ut_best[j] = top_ut[0][u_leaf[0], j]
+        # ---- 2–5. SciFi over the union of the UT ranges, then (if needed) the full range
+        best_key[0] = 1e300
         final_ok = False
-        if sf_best_n >= 0:
-            final_ok = _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_best,
-                                 sf_path, ut_path, sf_used_ut, mode, fixed,
+        full_done = False
+        for attempt in range(2):
+            if attempt == 0:
+                if n_utc == 0:
+                    q_lo = -qmax
+                    q_hi = qmax
+                    full_done = True
+                else:
+                    q_lo = r_lo[0]
+                    q_hi = r_hi[0]
+                    for c in range(1, n_utc):
+                        q_lo = min(q_lo, r_lo[c])
+                        q_hi = max(q_hi, r_hi[c])
+                    full_done = q_lo <= -qmax and q_hi >= qmax
+            else:
+                if final_ok or full_done or iopt[_I_FALLBACK] == 0:
+                    break
+                q_lo = -qmax
+                q_hi = qmax
+            n_c = _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, s0,
+                                ds0, pc, q_lo, q_hi, W, cand)
+            for c in range(n_c):
+                ok_c = _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, c_q[c], c_var[c],
+                                 c_paths[c], ut_best, n_utc > 0, mode, fixed,
                                  loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end,
                                  ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune, final_cut,
                                  ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar, out_chi2,
-                                 out_ndf, out_status, out_nut, out_nsf)
-        if not final_ok and ut_found:
+                                 out_ndf, out_status, out_nut, out_nsf, top_none, best_key)
+                final_ok = final_ok or ok_c
+                if final_ok and _pvalue_ok(out_chi2[t], out_ndf[t] + 1, good_cut) \
+                        and out_nsf[t] >= n_fwd - n_ut - 1:
+                    break  # a good, (nearly) complete extension: no need to look further
+        if not final_ok and n_utc > 0:
+            # an upstream track: the best UT leaf, its q/p from the kink
             out_status[t] = STATUS_NO_SCIFI
-            out_q[t] = q_ut
-            out_qvar[t] = var_ut
-            n_h = 0
-            for j in range(n_fwd):
-                out_hits[t, j] = -1
+            out_q[t] = u_q[0]
+            out_qvar[t] = u_var[0]
+            out_chi2[t] = u_chi[0]
+            out_ndf[t] = u_n[0] - 1
             for j in range(n_ut):
-                if ut_path[j] >= 0:
-                    out_hits[t, j] = ut_path[j]
-                    n_h += 1
-            out_nut[t] = n_h
+                out_hits[t, j] = ut_best[j]
+            out_nut[t] = u_n[0]
 
 
 @nb.njit(cache=True)
@@ -1005,64 +1313,84 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
               ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit,
               f_group_end, f_need_end, ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune,
               final_cut, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar, out_chi2, out_ndf,
-              out_status, out_nut, out_nsf):
-    """UT confirmation with the SciFi q/p as prior, then the final fit (step 5)."""
-    st = _reference(ext, poly, tref, quad, a, f_layer, n_fwd, s_v, q_best, abs(q_best), ref_s,
+              out_status, out_nut, out_nsf, top_none, best_key):
+    """UT confirmation with the SciFi q/p as prior, then the final fit (step 5); if the fit
+    with the UT hits fails its χ² cut, once more without UT hits."""
+    st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, abs(q_best), ref_s,
                     ref_F, ref_Q, work)
     if st == TRANSPORT_FAILED:
         return False
     confirm_min = iopt[_I_CONFIRM_MIN]
-    if confirm_min > 0:
-        for j in range(n_fwd):
-            mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
-        for i in range(5):
-            x0[i] = 0.0
-        _velo_prior(opt, abs(q_best), 0.0, P0)
-        P0[4, 4] = var_best
-        nb_c, _, _ = _search(
-            0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
-            f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-            opt[_O_CONFIRM_NSIG], iopt[_I_BRANCH], iopt[_I_BRANCH], n_ut - confirm_min,
-            confirm_min, True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP)
-        for j in range(n_ut):
-            fixed[j] = path[j] if nb_c >= confirm_min else -1
-    else:
-        for j in range(n_ut):
-            fixed[j] = ut_hits[j] if use_ut_hits else -1
-    for j in range(n_fwd):
-        mode[j] = _MODE_FIXED
-        if j >= n_ut:
-            fixed[j] = sf_path[j]
-    for i in range(4):
-        x0[i] = 0.0
-    x0[4] = -q_best
-    _velo_prior(opt, abs(q_best), opt[_O_WEAK_QPRIOR], P0)
-    _, n_fit, chi_f = _search(
-        0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
-        f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-        opt[_O_NSIG], 1, 1, 0, 0, False, 0, final_cut, iopt[_I_MAX_NODES], ws, path, bx, bP)
-    if n_fit < 1:
-        return False
-    n_u = 0
-    n_s = 0
-    for j in range(n_fwd):
-        if path[j] >= 0:
-            if j < n_ut:
-                n_u += 1
+    for attempt in range(2):
+        if attempt == 0:
+            if confirm_min > 0:
+                for j in range(n_fwd):
+                    mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
+                for i in range(5):
+                    x0[i] = 0.0
+                _velo_prior(opt, abs(q_best), 0.0, P0)
+                P0[4, 4] = var_best
+                nb_c, _, _ = _search(
+                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+                    opt[_O_CONFIRM_NSIG], iopt[_I_BRANCH], iopt[_I_BRANCH], n_ut - confirm_min,
+                    confirm_min, True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+                n_conf = 0
+                for j in range(n_ut):
+                    fixed[j] = path[j] if nb_c >= confirm_min else -1
+                    if fixed[j] >= 0:
+                        n_conf += 1
             else:
-                n_s += 1
-    if n_s < iopt[_I_SF_MIN] or chi_f > final_cut[min(n_u + n_s, final_cut.shape[0] - 1)]:
-        return False
-    for j in range(n_fwd):
-        out_hits[t, j] = path[j]
-    out_q[t] = ref_s[n_fwd - 1, 4] + bx[4]
-    out_qvar[t] = bP[4, 4]
-    out_chi2[t] = chi_f
-    out_ndf[t] = n_u + n_s - 1
-    out_nut[t] = n_u
-    out_nsf[t] = n_s
-    out_status[t] = STATUS_OK if n_u > 0 else STATUS_NO_UT
-    return True
+                n_conf = 0
+                for j in range(n_ut):
+                    fixed[j] = ut_hits[j] if use_ut_hits else -1
+                    if fixed[j] >= 0:
+                        n_conf += 1
+            if n_conf == 0:
+                continue  # identical to attempt 1
+        else:
+            for j in range(n_ut):
+                fixed[j] = -1
+        for j in range(n_fwd):
+            mode[j] = _MODE_FIXED
+            if j >= n_ut:
+                fixed[j] = sf_path[j]
+        for i in range(4):
+            x0[i] = 0.0
+        x0[4] = -q_best
+        _velo_prior(opt, abs(q_best), opt[_O_WEAK_QPRIOR], P0)
+        _, n_fit, chi_f = _search(
+            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+            opt[_O_NSIG], 1, 1, 0, 0, False, 0, final_cut, iopt[_I_MAX_NODES], ws, path, bx, bP,
+            top_none, 1e6)
+        if n_fit < 1:
+            continue
+        n_u = 0
+        n_s = 0
+        for j in range(n_fwd):
+            if path[j] >= 0:
+                if j < n_ut:
+                    n_u += 1
+                else:
+                    n_s += 1
+        if n_s < iopt[_I_SF_MIN] or chi_f > final_cut[min(n_u + n_s, final_cut.shape[0] - 1)]:
+            continue
+        key = chi_f - opt[_O_MISS] * (n_u + n_s)
+        if key >= best_key[0]:
+            return True
+        best_key[0] = key
+        for j in range(n_fwd):
+            out_hits[t, j] = path[j]
+        out_q[t] = ref_s[n_fwd - 1, 4] + bx[4]
+        out_qvar[t] = bP[4, 4]
+        out_chi2[t] = chi_f
+        out_ndf[t] = n_u + n_s - 1
+        out_nut[t] = n_u
+        out_nsf[t] = n_s
+        out_status[t] = STATUS_OK if n_u > 0 else STATUS_NO_UT
+        return True
+    return False
 
 
 # ------------------------------------------------------------------------------------
@@ -1128,24 +1456,10 @@ def _chi2_table(pvalue: float, n: int, offset: int) -> np.ndarray:
     return chi2_dist.isf(pvalue, ndf)
 
 
-def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
-                       geometry: Geometry, ext, options: ForwardOptions | None = None,
-                       **overrides) -> ForwardTracks:
-    """Extend VELO tracks through the UT and the SciFi (DESIGN §7.4).
-
-    track_event (n,): event id of each VELO track; velo_state (n, 4): (x, y, tx, ty) [mm]
-    at z_state (n,) [mm], a z inside the VELO (the state is moved along its straight line
-    to the nearest VELO layer: the VELO is straight to the parametrization's precision);
-    hit_event, hit_layer, hit_u, hit_sigma: hit columns of the same events (any order;
-    only UT and SciFi rows are used; u = x·cos α + y·sin α, σ_u [mm]); ext: the context
-    of the parametrized extrapolator (`ParameterSet.extrapolator(geometry)`); options:
-    `ForwardOptions` or keyword overrides. Returns `ForwardTracks` (hit rows index the
-    input hit arrays).
-    """
-    if options is None:
-        options = ForwardOptions(**overrides)
-    elif overrides:
-        options = ForwardOptions(**(asdict(options) | overrides))
+def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext,
+             options):
+    """Arrays for the kernel: hits of the forward layers sorted by (event, layer, u) with
+    their (event, layer) offsets, tracks moved to their VELO layer, option vectors."""
     lay = _layout(geometry)
     track_event = np.ascontiguousarray(track_event, dtype=np.int64)
     velo_state = np.ascontiguousarray(velo_state, dtype=np.float64).reshape(-1, 4)
@@ -1210,6 +1524,39 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
              if options.hough_tol_rel > 0 else qmax / options.hough_tol_abs)
     max_bins = int(2.0 * t_max) + 4
     poly, tref = new_table_buffers(ext)
+    geo = (f_layer, lay["f_cos"], lay["f_sin"], lay["f_sig"], lay["f_bit"], lay["f_group_end"],
+           lay["f_need_end"], lay["sf_need"], lay["x_layers"], lay["x_fwd"], lay["x_station_bit"],
+           lay["x_station_need"], lay["n_ut"])
+    return dict(n=n, n_events=n_ev, geo=geo, t_ev=t_ev, state=state, t_layer=t_layer, lay_off=lay_off,
+                hu=hu, hsig=hsig, rows=rows, fopt=fopt, iopt=iopt, cuts=(ut_prune, sf_prune, final_cut),
+                good_cut=_chi2_table(options.good_pvalue, n_meas, 1),
+                ut_cut=_chi2_table(options.ut_pvalue, n_meas, 1),
+                max_entries=max_entries, max_bins=max_bins, poly=poly, tref=tref, p_table=p_table,
+                events=events)
+
+
+def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
+                       geometry: Geometry, ext, options: ForwardOptions | None = None,
+                       **overrides) -> ForwardTracks:
+    """Extend VELO tracks through the UT and the SciFi (DESIGN §7.4).
+
+    track_event (n,): event id of each VELO track; velo_state (n, 4): (x, y, tx, ty) [mm]
+    at z_state (n,) [mm], a z inside the VELO (the state is moved along its straight line
+    to the nearest VELO layer: the VELO is straight to the parametrization's precision);
+    hit_event, hit_layer, hit_u, hit_sigma: hit columns of the same events (any order;
+    only UT and SciFi rows are used; u = x·cos α + y·sin α, σ_u [mm]); ext: the context
+    of the parametrized extrapolator (`ParameterSet.extrapolator(geometry)`); options:
+    `ForwardOptions` or keyword overrides. Returns `ForwardTracks` (hit rows index the
+    input hit arrays).
+    """
+    if options is None:
+        options = ForwardOptions(**overrides)
+    elif overrides:
+        options = ForwardOptions(**(asdict(options) | overrides))
+    prep = _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry,
+                    ext, options)
+    n = prep["n"]
+    n_fwd = prep["geo"][0].size
     out_hits = np.full((n, n_fwd), -1, dtype=np.int64)
     out_q = np.full(n, np.nan)
     out_qvar = np.full(n, np.nan)
@@ -1218,13 +1565,14 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     out_status = np.full(n, STATUS_NOT_FOUND, dtype=np.int64)
     out_nut = np.zeros(n, dtype=np.int64)
     out_nsf = np.zeros(n, dtype=np.int64)
-    if n and n_ev:
-        _extend_kernel(ext, poly, tref, f_layer, lay["f_cos"], lay["f_sin"], lay["f_sig"], lay["f_bit"],
-                       lay["f_group_end"], lay["f_need_end"], lay["sf_need"], lay["x_layers"],
-                       lay["x_fwd"], lay["x_station_bit"], lay["x_station_need"], lay["n_ut"],
-                       t_ev, state, t_layer, lay_off, hu, hsig, fopt, iopt, ut_prune, sf_prune,
-                       final_cut, max_entries, max_bins,
-                       out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf)
+    if n and prep["n_events"]:
+        _extend_kernel(ext, prep["poly"], prep["tref"], prep["geo"], prep["t_ev"], prep["state"],
+                       prep["t_layer"], prep["lay_off"], prep["hu"], prep["hsig"], prep["fopt"],
+                       prep["iopt"], prep["cuts"], (prep["good_cut"], prep["ut_cut"]), prep["max_entries"],
+                       prep["max_bins"],
+                       (out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf))
+    rows = prep["rows"]
+    p_table = prep["p_table"]
     found = out_hits >= 0
     counts = found.sum(axis=1)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

@@ -5,10 +5,12 @@ track, many transports of the same start state with different q/p hypotheses. Th
 module provides them with the paper's parametrized steps (`pkf.params.formulas`, the
 shipped or tuned parameter set of `pkf.fit.parametrized`), without a field map:
 
-- `transport`: one downstream transport between two layers (chained paper steps, as
-  `pkf.fit.parametrized.parametrized_step`), writing the state, the Jacobian and the
-  process noise evaluated at a chosen |q/p| (the noise of the paper's eq. 11 is ∝ (q/p)²:
-  a search needs it at the hypothesis, not at the linearisation point);
+- `reference_trajectory`: the transport of a VELO state through every UT and SciFi layer
+  (one paper step per layer pair, as `pkf.fit.parametrized.parametrized_step` chains
+  them), with the Jacobian and the process noise of each step evaluated at a chosen |q/p|
+  (the noise of the paper's eq. 11 is ∝ (q/p)²: a search needs it at the hypothesis, not
+  at the linearisation point);
+- `scan_states`: x, y and d/dq on the SciFi layers for a list of q/p hypotheses;
 - `table_localize` / `table_step`: the UT→SciFi step (paper eqs. 21–23) with the
   coefficients interpolated once per track at (x/z, y/z) of the last UT layer and then
   corrected to first order in (x, y): a q/p scan costs one interpolation instead of one
@@ -33,8 +35,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pkf.fit.parametrized import STEP_UT_TO_SCIFI, STEP_VELO, STEP_VELO_TO_UT, next_step
-from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
+from pkf.params import formulas
 from pkf.params.ut_to_scifi import (
     META_BEND,
     META_DEGREES,
@@ -50,6 +51,16 @@ from pkf.params.ut_to_scifi import (
     _axis_lookup,
     interpolation_weights,
 )
+
+# The per-layer formula (pkf.params.formulas), compiled again for inlining: the search calls
+# it ~10⁵ times per event. The rare, large steps (VELO→UT, the table) stay ordinary calls:
+# inlining them into the step dispatch makes every step ~5× slower.
+_INLINE = dict(cache=True, inline="always")
+layer_step = nb.njit(**_INLINE)(getattr(formulas.layer_step, "py_func", formulas.layer_step))
+velo_step = formulas.velo_step
+velo_to_ut_step = formulas.velo_to_ut_step
+parametrized_noise = nb.njit(**_INLINE)(getattr(formulas.parametrized_noise, "py_func",
+                                                   formulas.parametrized_noise))
 
 TRANSPORT_OK = 0
 TRANSPORT_FAILED = 2  # an unphysical step (|tx/N| ≥ 1 after the VELO→UT kink, NaN)
@@ -207,113 +218,81 @@ def table_step(meta, poly, ref, eloss, s_in, s_out, jac, quadratic):
     return status
 
 
-@nb.njit(cache=True)
-def _paper_step(ext, poly, ref, quadratic, kind, slot, cur, nxt, s_in, s_out, jac):
-    """One paper step of `kind` from layer cur to nxt (parameters of `slot`)."""
-    p = ext.extrapolation[slot]
-    z0 = ext.layer_z[cur]
-    z1 = ext.layer_z[nxt]
-    if kind == STEP_VELO:
-        velo_step(p, s_in, z0, z1, s_out, jac)
-    elif kind == STEP_VELO_TO_UT:
-        if not velo_to_ut_step(p, s_in, z0, z1, s_out, jac):
-            return TRANSPORT_FAILED
-    elif kind == STEP_UT_TO_SCIFI:
-        return table_step(ext.uts_meta, poly, ref, p[0], s_in, s_out, jac, quadratic)
-    else:
-        layer_step(p, s_in, z0, z1, s_out, jac)
-    return TRANSPORT_OK
+@nb.njit(cache=True, inline="always")
+def _noise_at(noise_par, slot, s, q_noise, dz, s_tmp, out):
+    """Paper eq. 11 for the step leaving `slot`, at the slopes of s and |q/p| = q_noise."""
+    for i in range(4):
+        s_tmp[i] = s[i]
+    s_tmp[4] = q_noise
+    parametrized_noise(noise_par[slot], s_tmp, dz, out)
 
 
 @nb.njit(cache=True)
-def transport(ext, poly, ref, quadratic, cur, target, s_in, q_noise, s_out, jac, noise, work):
-    """Transport s_in (5) at layer `cur` to layer `target` (downstream) through the chain
-    of paper steps. Writes s_out, the Jacobian jac (5×5) and the process noise (5×5,
-    paper eq. 11 with |q/p| = q_noise, accumulated as J·Q·Jᵀ + Q_step). work: (5, 5, 5)
-    scratch. Returns the worst status of the steps (TRANSPORT_*); s_out is finite only
-    if the status is not TRANSPORT_FAILED."""
-    for i in range(5):
-        s_out[i] = s_in[i]
-        for k in range(5):
-            jac[i, k] = 1.0 if i == k else 0.0
-            noise[i, k] = 0.0
+def reference_trajectory(ext, poly, ref, quadratic, a, f_layer, n_ut, j_end, s_start, q_noise,
+                         ref_s, ref_F, ref_Q, s_tmp):
+    """Transport s_start (5, at VELO layer a) to the forward layers f_layer[0 … j_end−1]
+    (the UT layers, then the SciFi layers, consecutive in the geometry): ref_s[j] (5),
+    the Jacobian ref_F[j] of the step from the previous layer (from layer a for j = 0)
+    and its noise ref_Q[j] at |q/p| = q_noise. One paper step per layer pair: VELO→UT
+    (eqs. 15–20), UT/SciFi layer steps (eq. 14), UT→SciFi table (eqs. 21–23).
+    Returns the worst TRANSPORT_* status.
+
+    The two large steps are ordinary calls outside the per-layer loops: an un-taken
+    call inside the loop makes every inlined layer step ~5× slower (numba keeps the
+    array arguments reference counted).
+    """
+    layer_z = ext.layer_z
+    extrap = ext.extrapolation
+    noise_par = ext.noise
     status = TRANSPORT_OK
-    seg = work[0, 0]
-    snoise = work[0, 1]
-    sjac = work[1]
-    sq = work[2]
-    tmp = work[3]
-    tmp2 = work[4]
-    first = True
-    while cur < target:
-        kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type,
-                                    cur, target)
-        st = _paper_step(ext, poly, ref, quadratic, kind, slot, cur, nxt, s_out, seg, sjac)
-        if st == TRANSPORT_FAILED:
-            return st
-        if st > status:
-            status = st
-        for i in range(5):
-            snoise[i] = s_out[i]
-        snoise[4] = q_noise
-        parametrized_noise(ext.noise[slot], snoise, ext.layer_z[nxt] - ext.layer_z[cur], sq)
-        if first:
-            for i in range(5):
-                for k in range(5):
-                    jac[i, k] = sjac[i, k]
-                    noise[i, k] = sq[i, k]
-            first = False
-        else:
-            for i in range(5):
-                for k in range(5):
-                    acc = 0.0
-                    for m in range(5):
-                        acc += sjac[i, m] * jac[m, k]
-                    tmp[i, k] = acc
-            for i in range(5):
-                for k in range(5):
-                    jac[i, k] = tmp[i, k]
-            # noise ← J·noise·Jᵀ + Q
-            for i in range(5):
-                for k in range(5):
-                    acc = 0.0
-                    for m in range(5):
-                        acc += sjac[i, m] * noise[m, k]
-                    tmp[i, k] = acc
-            for i in range(5):
-                for k in range(5):
-                    acc = 0.0
-                    for m in range(5):
-                        acc += tmp[i, m] * sjac[k, m]
-                    tmp2[i, k] = acc + sq[i, k]
-            for i in range(5):
-                for k in range(5):
-                    noise[i, k] = tmp2[i, k]
-        for i in range(5):
-            s_out[i] = seg[i]
-        cur = nxt
+    z1 = layer_z[f_layer[0]]
+    slot = ext.sub_last[ext.layer_sub[a]]
+    if not velo_to_ut_step(extrap[slot], s_start, layer_z[a], z1, ref_s[0], ref_F[0]):
+        return TRANSPORT_FAILED
+    _noise_at(noise_par, slot, s_start, q_noise, z1 - layer_z[a], s_tmp, ref_Q[0])
+    for j in range(1, min(n_ut, j_end)):
+        l0 = f_layer[j - 1]
+        dz = layer_z[l0 + 1] - layer_z[l0]
+        layer_step(extrap[l0], ref_s[j - 1], layer_z[l0], layer_z[l0 + 1], ref_s[j], ref_F[j])
+        _noise_at(noise_par, l0, ref_s[j - 1], q_noise, dz, s_tmp, ref_Q[j])
+    if j_end > n_ut:
+        l0 = f_layer[n_ut - 1]
+        status = table_step(ext.uts_meta, poly, ref, extrap[l0, 0], ref_s[n_ut - 1], ref_s[n_ut],
+                            ref_F[n_ut], quadratic)
+        _noise_at(noise_par, l0, ref_s[n_ut - 1], q_noise, layer_z[l0 + 1] - layer_z[l0], s_tmp,
+                  ref_Q[n_ut])
+        for j in range(n_ut + 1, j_end):
+            l0 = f_layer[j - 1]
+            dz = layer_z[l0 + 1] - layer_z[l0]
+            layer_step(extrap[l0], ref_s[j - 1], layer_z[l0], layer_z[l0 + 1], ref_s[j], ref_F[j])
+            _noise_at(noise_par, l0, ref_s[j - 1], q_noise, dz, s_tmp, ref_Q[j])
     for i in range(5):
-        if not np.isfinite(s_out[i]):
+        if not np.isfinite(ref_s[j_end - 1, i]):
             return TRANSPORT_FAILED
     return status
 
 
 @nb.njit(cache=True)
-def scan_states(ext, poly, ref, quadratic, cur, layers, s0, ds0, q_nodes, xs, dxs, ys, dys, work):
-    """States along `layers` (sorted, downstream of `cur`) for each q/p node.
+def scan_states(ext, poly, ref, quadratic, l_from, sf_layers, s0, ds0, q_nodes, xs, dxs, ys, dys,
+                work):
+    """States on the SciFi layers for each q/p node, from the last UT layer l_from.
 
-    The start state at layer `cur` for the hypothesis q is s0[:4] + ds0[:4]·(q − s0[4])
-    (a conditional mean given q, e.g. of a fitted UT state); the outputs are x, y and
-    their total derivatives d/dq at each layer: xs, dxs, ys, dys (n_nodes, n_layers).
+    sf_layers: the SciFi layers (consecutive, the first is l_from + 1). The start state
+    for the hypothesis q is s0[:4] + ds0[:4]·(q − s0[4]) (a conditional mean given q,
+    e.g. of a fitted UT state); outputs x, y and their total derivatives d/dq on each
+    SciFi layer: xs, dxs, ys, dys (n_nodes, n_layers). work: (4, 5, 5) scratch.
     Returns the worst TRANSPORT_* status.
     """
+    layer_z = ext.layer_z
+    extrap = ext.extrapolation
     s = work[0, 0]
     s_next = work[0, 1]
     d = work[0, 2]
     d_next = work[0, 3]
     jac = work[1]
     status = TRANSPORT_OK
-    n_layers = layers.shape[0]
+    n_layers = sf_layers.shape[0]
+    eloss = extrap[l_from, 0]
     for k in range(q_nodes.shape[0]):
         q = q_nodes[k]
         for i in range(4):
@@ -321,32 +300,25 @@ def scan_states(ext, poly, ref, quadratic, cur, layers, s0, ds0, q_nodes, xs, dx
             d[i] = ds0[i]
         s[4] = q
         d[4] = 1.0
-        c = cur
-        li = 0
-        while li < n_layers:
-            target = layers[li]
-            while c < target:
-                kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type,
-                                            ext.between_type, c, target)
-                st = _paper_step(ext, poly, ref, quadratic, kind, slot, c, nxt, s, s_next, jac)
-                if st == TRANSPORT_FAILED:
-                    return st
-                if st > status:
-                    status = st
-                for i in range(5):
-                    acc = 0.0
-                    for m in range(5):
-                        acc += jac[i, m] * d[m]
-                    d_next[i] = acc
-                for i in range(5):
-                    s[i] = s_next[i]
-                    d[i] = d_next[i]
-                c = nxt
+        st = table_step(ext.uts_meta, poly, ref, eloss, s, s_next, jac, quadratic)
+        if st > status:
+            status = st
+        for li in range(n_layers):
+            if li > 0:
+                l0 = sf_layers[li - 1]
+                layer_step(extrap[l0], s, layer_z[l0], layer_z[l0 + 1], s_next, jac)
+            for i in range(5):
+                acc = 0.0
+                for m in range(5):
+                    acc += jac[i, m] * d[m]
+                d_next[i] = acc
+            for i in range(5):
+                s[i] = s_next[i]
+                d[i] = d_next[i]
             xs[k, li] = s[0]
             ys[k, li] = s[1]
             dxs[k, li] = d[0]
             dys[k, li] = d[1]
-            li += 1
         for i in range(5):
             if not np.isfinite(s[i]):
                 return TRANSPORT_FAILED

@@ -1,0 +1,894 @@
+"""The Gaussian-sum filter (GSF) for electrons (DESIGN §9.5, seeds/002).
+
+The track state is a Gaussian mixture Σ_c w_c·N(μ_c, P_c) over (x, y, tx, ty, q/p).
+Transport and material are those of the reference extrapolator (`pkf.fit.reference`)
+applied to every component: RK4 with its Jacobian through the field map from plane to
+plane, Highland slope noise and the Bethe mean ionisation loss at each material plane
+(for the mass hypothesis, the electron's by default). For electrons, each component is
+then convolved at every plane with pkf's Gaussian-mixture approximation of the
+Bethe–Heitler distribution of z = E_f/E_i (`pkf.params.bethe_heitler`, K components
+as functions of the path length t = x/X0·N; the ACTS shortcuts below t = 0.002):
+component c becomes K components with weights w_c·π_b and, downstream (forward
+filter, q/p′ = q/p / z), mean q/p/μ_b, Jacobian 1/μ_b on the q/p row and column and
+added variance (q/p′)²·σ_b²/μ_b² (the linearisation of q/p / z); upstream (backward
+filter, q/p′ = q/p·z, exact) mean q/p·μ_b, Jacobian μ_b, added variance (q/p)²·σ_b².
+(E = p for electrons above 100 MeV to 1e−5.) Ionisation, then bremsstrahlung, in both
+directions (the physical order upstream is the reverse; the difference in q/p is
+ΔE_ion·(1 − z)/p, below 2e−4 relative even for a hard radiation at 1 GeV).
+
+After every plane the mixture is reduced: components with weight < `weight_cut`
+(1e−4) are dropped, then the closest pair in the symmetric Kullback–Leibler distance of
+the q/p marginals (as ACTS: d = (v_i − v_j)(1/v_j − 1/v_i) + (μ_i − μ_j)²(1/v_i + 1/v_j))
+is merged by moment matching until at most `max_components` (12) remain (nearest-
+neighbour bookkeeping keeps one reduction O(n²) in the n = 12·K components).
+
+Measurement update: each component gets its own Kalman update (sequential scalar
+updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
+N(r_c; 0, S_c), then the weights are renormalised and cut.
+
+Forward and backward passes, and the smoothing choice. The forward GSF runs from the
+seed (the Kalman fitters' seed state and covariance) at the first node. The backward
+GSF is an independent filter from the last node upstream, started from a vague prior
+— diag(400 mm², 400 mm², 0.01, 0.01, (0.1·q/p)²) centred at the forward filter's
+final (collapsed) state, which only serves as the linearisation point: its weight
+against one SciFi hit is < 1e−4, against the magnet's q/p measurement ≈ 0.2 %. The
+smoothed state at node k is the product of the forward *predicted* mixture (all
+information upstream of k) and the backward *filtered* mixture (node k and everything
+downstream): every pair (i, j) gives a component with weight ∝ a_i·b_j·N(μ_i; ν_j,
+P_i + B_j) and the Gaussian product's mean and covariance; pairs below the weight cut
+are dropped and the product is reduced like any mixture. This is the GSF analogue of
+the Kalman core's weighted mean of the forward prediction and the backward filter
+(for one component it is exactly that).
+
+The seed at the first node. The seed q/p comes from a fit of the same hits with a 10 %
+prior width: harmless for the Kalman fitters (0.2 % of the information of the magnet's
+measurement), but for an electron the q/p at the first hit is not what the magnet
+measures (bremsstrahlung in between), and a 10 % prior at the first node pulls the
+first-hit state to the "no loss" hypothesis. The forward filter keeps the seed as its
+prior (it is a good linearisation point through the magnet), but in the smoothing at
+the first node — where the forward prediction *is* the seed — its q/p width is widened
+to `seed_qop_fraction`·|q/p| (1.0: no information). Measured on lhcb-like electrons:
+keeping the 10 % there makes the first-hit δp/p core 5–15 % wider; widening the seed
+in the forward filter itself instead spoils the linearisation through the magnet and
+doubles the last-hit δp/p core.
+
+Output per node (`output`):
+- "mode" (default): the peak of the smoothed mixture — the component at whose q/p the
+  mixture's q/p marginal density is highest, merged by moment matching with the
+  components not resolved from it, |μ_j − μ_m| ≤ `peak_window`·√(v_j + v_m) in q/p
+  (window 1), and that merge's covariance. The largest *weight* is a poor mode: after
+  KL merging a broad component of many large-loss hypotheses often carries the largest
+  weight (measured: last-hit δp/p core 4.6 % instead of 1.5 %); the density-mode
+  component alone has a covariance that ignores the unresolved small losses around it
+  (last-hit q/p pull core 1.7–3.0), the peak's is calibrated (1.0–1.5).
+- "max-weight": ACTS' choice: the largest-weight component's mean, with the mixture's
+  covariance about it.
+- "mean": the mixture's mean and full covariance (moment matching).
+χ² is the sum over nodes of the forward filter's predicted-residual χ² of the collapsed
+predicted mixture (for one component: the Kalman fitters' χ²), ndf = Σ measurement
+dimensions − 5. Outliers are removed as in the Kalman core, by each node's
+standardised χ² of the output state (where a mixture covariance exceeds the measurement
+variance, standardised by the measurement variance alone).
+
+What a GSF can and cannot do here (measured, see the issue-7 note): in the lhcb-like
+spectrometer the momentum is measured in the magnet between UT and SciFi; there is
+hardly any field between the VELO and the UT, so the bremsstrahlung between the first
+hit and the magnet (≈ 0.2–0.3 X0) is not observable and the first-hit electron q/p
+is not measured by any fit (GSF mode and Kalman agree to ~2 % in every bin of true
+upstream loss). The GSF gains at the last hit (SciFi brems partly seen through the
+residual field) and in the tails everywhere; in the homogeneous-field telescope it
+halves the RMS of δp/p with calibrated pulls, while Gaussian cores stay those of the
+non-radiating majority.
+
+Cost. Each component's mean is transported by RK4; by default (`share_jacobians`) the
+RK4 Jacobian is integrated only for the largest-weight component and applied to every
+component's covariance. The transport Jacobian of a z-parametrised state depends on
+q/p only through the small field-gradient and slope-curvature terms, so components that
+differ in q/p by the tens of percent of a hard bremsstrahlung share it with a relative
+error of the covariance ~1e−3 (benchmark: `benchmarks/gsf_components.py`); it saves the
+4 extra field evaluations per stage and the Jacobian algebra per component. With
+``share_jacobians=False`` every component integrates its own.
+
+For a hypothesis other than the electron (no bremsstrahlung), the mixture keeps one
+component and the GSF is a Kalman filter with forward filter, independent backward
+filter and weighted-mean combination (tested to equal the Kalman core).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from pkf.fit.extrapolator import (
+    STATUS_EXTRAPOLATION_FAILED,
+    STATUS_NO_SEED,
+    STATUS_NOT_POSITIVE_DEFINITE,
+    STATUS_OK,
+    STATUS_TOO_FEW_HITS,
+)
+from pkf.fit.gx2f import fit_locations
+from pkf.fit.kalman import _node_chi2
+from pkf.fit.linalg import copy5, copy55, invert_spd, sandwich, search_sorted, set_identity, symmetrise
+from pkf.fit.reference import MAX_SLOPE, ReferenceExtrapolator, add_plane_material, reference_extrapolator
+from pkf.fit.tracks import FitResult
+from pkf.geometry.acceptance import in_active_area
+from pkf.params.bethe_heitler import BetheHeitlerMixture, bethe_heitler_components, load_bethe_heitler_mixture
+from pkf.physics.transport import rk4_propagate_jacobian, rk4_propagate_scalar
+from pkf.simulation.species import MASS_ELECTRON
+
+OUTPUT_MODE = 0
+OUTPUT_MEAN = 1
+OUTPUT_MAX_WEIGHT = 2
+OUTPUTS = {"mode": OUTPUT_MODE, "mean": OUTPUT_MEAN, "max-weight": OUTPUT_MAX_WEIGHT}
+#: ACTS defaults (DESIGN §15).
+MAX_COMPONENTS = 12
+WEIGHT_CUT = 1e-4
+#: Vague prior of the backward filter (see the module docstring).
+BACKWARD_PRIOR_VARIANCES = (400.0, 400.0, 0.01, 0.01)
+BACKWARD_PRIOR_QOP_FRACTION = 0.1
+#: In the smoothing at the first node the seed's q/p width is at least this fraction of |q/p|.
+SEED_QOP_FRACTION = 1.0
+#: "mode" output: components within this many σ (in q/p) of the mode component form the peak.
+PEAK_WINDOW = 1.0
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+class GsfExtrapolator(NamedTuple):
+    """Context of the GSF: the reference extrapolator (field map, material, mass
+    hypothesis), the Bethe–Heitler mixture coefficients and t range [X0], whether
+    bremsstrahlung is modelled, and the mixture options."""
+
+    ref: ReferenceExtrapolator
+    bh_coefficients: np.ndarray
+    bh_t_min: float
+    bh_t_max: float
+    bethe_heitler: bool
+    max_components: int
+    weight_cut: float
+    output: int
+    share_jacobians: bool
+    seed_qop_fraction: float
+    peak_window: float
+
+
+def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, max_components: int = MAX_COMPONENTS,
+                     weight_cut: float = WEIGHT_CUT, output: str = "mode", bethe_heitler: bool | None = None,
+                     share_jacobians: bool = True, mixture: BetheHeitlerMixture | None = None,
+                     seed_qop_fraction: float = SEED_QOP_FRACTION, peak_window: float = PEAK_WINDOW,
+                     field=None) -> GsfExtrapolator:
+    """The GSF context for `geometry`: mass hypothesis [MeV] (bremsstrahlung modelled by
+    default only for the electron mass), at most `max_components`, the weight cut, the
+    output ("mode", "max-weight" or "mean"), Jacobian sharing, the Bethe–Heitler mixture
+    (the shipped one by default), the seed's q/p width in the first node's smoothing and
+    the "mode" output's peak window (see the module docstring)."""
+    if output not in OUTPUTS:
+        raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, not {output!r}")
+    if max_components < 1:
+        raise ValueError(f"max_components must be >= 1, not {max_components}")
+    if bethe_heitler is None:
+        bethe_heitler = abs(mass - MASS_ELECTRON) < 1e-6
+    mixture = mixture or load_bethe_heitler_mixture()
+    return GsfExtrapolator(reference_extrapolator(geometry, mass=mass, field=field),
+                           np.ascontiguousarray(mixture.coefficients), float(mixture.t_min),
+                           float(mixture.t_max), bool(bethe_heitler), int(max_components), float(weight_cut),
+                           OUTPUTS[output], bool(share_jacobians), float(seed_qop_fraction),
+                           float(peak_window))
+
+
+@dataclass
+class GsfResult(FitResult):
+    """`FitResult` plus, per track, the number of components of the smoothed mixture at
+    the first hit (after reduction)."""
+
+    n_components: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+# ----------------------------------------------------------------------------------
+# Mixture utilities
+# ----------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True, inline="always")
+def _copy_component(w, mu, cov, i, w2, mu2, cov2, j):
+    w2[j] = w[i]
+    copy5(mu[i], mu2[j])
+    copy55(cov[i], cov2[j])
+
+
+@nb.njit(cache=True, inline="always")
+def _kl_distance(mu, cov, i, j):
+    """Symmetric Kullback–Leibler distance of the q/p marginals of components i and j (ACTS)."""
+    vi = cov[i, 4, 4]
+    vj = cov[j, 4, 4]
+    d = mu[i, 4] - mu[j, 4]
+    return (vi - vj) * (1.0 / vj - 1.0 / vi) + d * d * (1.0 / vi + 1.0 / vj)
+
+
+@nb.njit(cache=True)
+def _merge_into(w, mu, cov, i, j):
+    """Component i ← moment-matched merge of components i and j."""
+    wi = w[i]
+    wj = w[j]
+    wt = wi + wj
+    if not wt > 0.0:
+        return
+    a = wi / wt
+    b = wj / wt
+    d = np.empty(5)
+    for k in range(5):
+        d[k] = mu[i, k] - mu[j, k]
+    for k in range(5):
+        for l in range(5):
+            cov[i, k, l] = a * cov[i, k, l] + b * cov[j, k, l] + a * b * d[k] * d[l]
+    for k in range(5):
+        mu[i, k] = a * mu[i, k] + b * mu[j, k]
+    w[i] = wt
+
+
+@nb.njit(cache=True)
+def _normalise_and_cut(w, mu, cov, n, cut):
+    """Normalise the weights, drop components below `cut` (keeping the largest), compact.
+    Returns the new number of components (0 if no weight is positive)."""
+    total = 0.0
+    best = -1
+    for c in range(n):
+        if w[c] > 0.0 and math.isfinite(w[c]):
+            total += w[c]
+            if best < 0 or w[c] > w[best]:
+                best = c
+        else:
+            w[c] = 0.0
+    if not total > 0.0:
+        return 0
+    kept = 0.0
+    for c in range(n):
+        if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
+            kept += w[c]
+    out = 0
+    for c in range(n):
+        if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
+            if out != c:
+                _copy_component(w, mu, cov, c, w, mu, cov, out)
+            w[out] /= kept
+            out += 1
+    return out
+
+
+@nb.njit(cache=True)
+def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
+    """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
+    compacts and returns the new count."""
+    if n <= max_n:
+        return n
+    for i in range(n):
+        alive[i] = True
+        nearest_d[i] = np.inf
+        nearest[i] = -1
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = _kl_distance(mu, cov, i, j)
+            if d < nearest_d[i]:
+                nearest_d[i] = d
+                nearest[i] = j
+            if d < nearest_d[j]:
+                nearest_d[j] = d
+                nearest[j] = i
+    count = n
+    while count > max_n:
+        i = -1
+        for k in range(n):
+            if alive[k] and (i < 0 or nearest_d[k] < nearest_d[i]):
+                i = k
+        j = nearest[i]
+        _merge_into(w, mu, cov, i, j)
+        alive[j] = False
+        count -= 1
+        nearest_d[i] = np.inf
+        nearest[i] = -1
+        for k in range(n):
+            if not alive[k] or k == i:
+                continue
+            d = _kl_distance(mu, cov, i, k)
+            if d < nearest_d[i]:
+                nearest_d[i] = d
+                nearest[i] = k
+            if nearest[k] == i or nearest[k] == j:
+                # its partner changed: recompute its nearest neighbour
+                nearest_d[k] = np.inf
+                nearest[k] = -1
+                for l in range(n):
+                    if alive[l] and l != k:
+                        dl = _kl_distance(mu, cov, k, l)
+                        if dl < nearest_d[k]:
+                            nearest_d[k] = dl
+                            nearest[k] = l
+            elif d < nearest_d[k]:
+                nearest_d[k] = d
+                nearest[k] = i
+    out = 0
+    for c in range(n):
+        if alive[c]:
+            if out != c:
+                _copy_component(w, mu, cov, c, w, mu, cov, out)
+            out += 1
+    return out
+
+
+@nb.njit(cache=True)
+def _collapse(w, mu, cov, n, out_mean, out_cov):
+    """Mean and covariance of the mixture (moment matching)."""
+    total = 0.0
+    for c in range(n):
+        total += w[c]
+    for k in range(5):
+        s = 0.0
+        for c in range(n):
+            s += w[c] * mu[c, k]
+        out_mean[k] = s / total
+    for k in range(5):
+        for l in range(5):
+            s = 0.0
+            for c in range(n):
+                s += w[c] * (cov[c, k, l] + (mu[c, k] - out_mean[k]) * (mu[c, l] - out_mean[l]))
+            out_cov[k, l] = s / total
+
+
+@nb.njit(cache=True)
+def _second_moment(w, mu, cov, n, centre, out_cov):
+    """Covariance of the mixture about `centre`: Σ w_c·(P_c + (μ_c − centre)(μ_c − centre)ᵀ)."""
+    total = 0.0
+    for c in range(n):
+        total += w[c]
+    for k in range(5):
+        for l in range(5):
+            s = 0.0
+            for c in range(n):
+                s += w[c] * (cov[c, k, l] + (mu[c, k] - centre[k]) * (mu[c, l] - centre[l]))
+            out_cov[k, l] = s / total
+
+
+@nb.njit(cache=True)
+def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
+    """The mixture's peak around component `mode`: the moment-matched merge of the
+    components whose q/p is compatible with the mode's, |μ_j − μ_m| ≤ window·√(v_j + v_m)."""
+    total = 0.0
+    for k in range(5):
+        out_mean[k] = 0.0
+    vm = cov[mode, 4, 4]
+    for c in range(n):
+        d = mu[c, 4] - mu[mode, 4]
+        if d * d <= window * window * (cov[c, 4, 4] + vm):
+            total += w[c]
+            for k in range(5):
+                out_mean[k] += w[c] * mu[c, k]
+    for k in range(5):
+        out_mean[k] /= total
+    for k in range(5):
+        for l in range(5):
+            out_cov[k, l] = 0.0
+    for c in range(n):
+        d = mu[c, 4] - mu[mode, 4]
+        if d * d <= window * window * (cov[c, 4, 4] + vm):
+            a = w[c] / total
+            for k in range(5):
+                for l in range(5):
+                    out_cov[k, l] += a * (cov[c, k, l] + (mu[c, k] - out_mean[k]) * (mu[c, l] - out_mean[l]))
+
+
+@nb.njit(cache=True)
+def _largest(w, n):
+    best = 0
+    for c in range(1, n):
+        if w[c] > w[best]:
+            best = c
+    return best
+
+
+@nb.njit(cache=True)
+def _mode_component(w, mu, cov, n):
+    """The component at whose q/p mean the mixture's q/p marginal density is highest."""
+    best = 0
+    best_density = -1.0
+    for c in range(n):
+        density = 0.0
+        for j in range(n):
+            v = cov[j, 4, 4]
+            d = mu[c, 4] - mu[j, 4]
+            density += w[j] * math.exp(-0.5 * d * d / v) / math.sqrt(v)
+        if density > best_density:
+            best_density = density
+            best = c
+    return best
+
+
+# ----------------------------------------------------------------------------------
+# Transport, material, update
+# ----------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
+    """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
+    (the leading component's if ctx.share_jacobians). A component that fails (leaves the
+    z-parametrised envelope) gets weight 0. Returns the number of surviving components."""
+    if z_to == z_from:
+        return n
+    ref = ctx.ref
+    lead = _largest(w, n)
+    alive = 0
+    if ctx.share_jacobians:
+        new = rk4_propagate_jacobian(mu[lead], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
+                                     ref.field_grid, seg)
+        for c in range(n):
+            if c == lead:
+                for i in range(4):
+                    mu[c, i] = new[i]
+            else:
+                x, y, tx, ty = rk4_propagate_scalar(mu[c, 0], mu[c, 1], mu[c, 2], mu[c, 3], mu[c, 4], z_from,
+                                                    z_to, ref.max_step, ref.field_kind, ref.field_params,
+                                                    ref.field_grid)
+                mu[c, 0] = x
+                mu[c, 1] = y
+                mu[c, 2] = tx
+                mu[c, 3] = ty
+            sandwich(seg, cov[c], tmp, tmp2)
+            copy55(tmp2, cov[c])
+    else:
+        for c in range(n):
+            new = rk4_propagate_jacobian(mu[c], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
+                                         ref.field_grid, seg)
+            for i in range(4):
+                mu[c, i] = new[i]
+            sandwich(seg, cov[c], tmp, tmp2)
+            copy55(tmp2, cov[c])
+    for c in range(n):
+        ok = abs(mu[c, 2]) <= MAX_SLOPE and abs(mu[c, 3]) <= MAX_SLOPE
+        for i in range(5):
+            if not math.isfinite(mu[c, i]):
+                ok = False
+        if ok:
+            alive += 1
+        else:
+            w[c] = 0.0
+    return alive
+
+
+@nb.njit(cache=True)
+def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
+    """Material of plane k for every component of (w, mu, cov)[:n], written into
+    (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
+    Bethe–Heitler convolution. Returns the number of output components."""
+    ref = ctx.ref
+    out = 0
+    for c in range(n):
+        set_identity(jm)
+        for i in range(5):
+            for j in range(5):
+                noise[i, j] = 0.0
+        x = mu[c, 0]
+        y = mu[c, 1]
+        tx = mu[c, 2]
+        ty = mu[c, 3]
+        inside = in_active_area(x, y, ref.plane_half_x[k], ref.plane_half_y[k], ref.plane_hole_radius[k],
+                                ref.plane_hole_half_x[k], ref.plane_hole_half_y[k], ref.plane_side[k],
+                                ref.plane_side_overlap[k])
+        add_plane_material(ref, k, mu[c], direction, jm, noise)
+        d = jm[4, 4]
+        pc = cov[c]
+        for i in range(5):
+            pc[4, i] *= d
+            pc[i, 4] *= d
+        for i in range(5):
+            for j in range(5):
+                pc[i, j] += noise[i, j]
+        nb_comp = 0
+        if ctx.bethe_heitler and inside and mu[c, 4] != 0.0 and math.isfinite(mu[c, 4]):
+            t = ref.plane_x_over_x0[k] * math.sqrt(1.0 + tx * tx + ty * ty)
+            nb_comp = bethe_heitler_components(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, t, bw, bm, bv)
+        if nb_comp == 0:
+            _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
+            out += 1
+            continue
+        qop = mu[c, 4]
+        for b in range(nb_comp):
+            _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
+            w2[out] *= bw[b]
+            zb = bm[b]
+            if direction > 0.0:
+                jq = 1.0 / zb
+                new_qop = qop / zb
+                add = new_qop * new_qop * bv[b] / (zb * zb)
+            else:
+                jq = zb
+                new_qop = qop * zb
+                add = qop * qop * bv[b]
+            mu2[out, 4] = new_qop
+            p2 = cov2[out]
+            for i in range(5):
+                p2[4, i] *= jq
+                p2[i, 4] *= jq
+            p2[4, 4] += add
+            out += 1
+    return out
+
+
+@nb.njit(cache=True)
+def _propagate(ctx, direction, z_from, z_to, buf, n, nearest, nearest_d, alive, scratch, bh):
+    """Transport the mixture buf[0] (n components) from z_from to z_to through the material
+    planes in (min z, max z] with the Bethe–Heitler convolution and a reduction after
+    each plane. buf = (w, mu, cov) × 2 working sets. Returns the new component count."""
+    w, mu, cov, w2, mu2, cov2 = buf
+    seg = scratch[0]
+    tmp = scratch[1]
+    tmp2 = scratch[2]
+    jm = scratch[3]
+    noise = scratch[4]
+    bw = bh[0]
+    bm = bh[1]
+    bv = bh[2]
+    ref = ctx.ref
+    plane_z = ref.plane_z
+    z = z_from
+    if direction > 0.0:
+        k = search_sorted(plane_z, z_from, True)
+        k_step = 1
+    else:
+        k = search_sorted(plane_z, z_from, True) - 1
+        k_step = -1
+    while 0 <= k < plane_z.size and ((direction > 0.0 and plane_z[k] <= z_to) or
+                                     (direction < 0.0 and plane_z[k] > z_to)):
+        _transport(ctx, w, mu, cov, n, z, plane_z[k], seg, tmp, tmp2)
+        n = _normalise_and_cut(w, mu, cov, n, 0.0)
+        if n == 0:
+            return 0
+        z = plane_z[k]
+        n2 = _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv)
+        n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
+        n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, nearest, nearest_d, alive)
+        for c in range(n2):
+            _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
+        n = n2
+        k += k_step
+    _transport(ctx, w, mu, cov, n, z, z_to, seg, tmp, tmp2)
+    return _normalise_and_cut(w, mu, cov, n, 0.0)
+
+
+@nb.njit(cache=True, inline="always")
+def _scalar_update(x, p, hx, hy, m, var):
+    """Kalman update with one scalar measurement; returns (r²/S, S), S ≤ 0 on failure."""
+    r = m - (hx * x[0] + hy * x[1])
+    ph0 = hx * p[0, 0] + hy * p[0, 1]
+    ph1 = hx * p[1, 0] + hy * p[1, 1]
+    s = var + hx * ph0 + hy * ph1
+    if not s > 0.0:
+        return 0.0, -1.0
+    ph2 = hx * p[2, 0] + hy * p[2, 1]
+    ph3 = hx * p[3, 0] + hy * p[3, 1]
+    ph4 = hx * p[4, 0] + hy * p[4, 1]
+    g = r / s
+    x[0] += ph0 * g
+    x[1] += ph1 * g
+    x[2] += ph2 * g
+    x[3] += ph3 * g
+    x[4] += ph4 * g
+    ph = (ph0, ph1, ph2, ph3, ph4)
+    for i in range(5):
+        for j in range(i, 5):
+            v = p[i, j] - ph[i] * ph[j] / s
+            p[i, j] = v
+            p[j, i] = v
+    return r * r / s, s
+
+
+@nb.njit(cache=True)
+def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
+    """Per-component Kalman update with node (n_meas, hx, hy, m, sigma) and weight
+    re-scaling by the predictive likelihoods. Returns the new component count."""
+    largest = -np.inf
+    for c in range(n):
+        loglik = 0.0
+        ok = True
+        for j in range(n_meas):
+            inc, s = _scalar_update(mu[c], cov[c], hx[j], hy[j], m[j], sigma[j] * sigma[j])
+            if s <= 0.0:
+                ok = False
+                break
+            loglik -= 0.5 * (inc + math.log(s) + _LOG_2PI)
+        if ok and w[c] > 0.0:
+            w[c] = math.log(w[c]) + loglik
+            largest = max(largest, w[c])
+        else:
+            w[c] = -np.inf
+    if largest == -np.inf:
+        return 0
+    for c in range(n):
+        w[c] = math.exp(w[c] - largest) if w[c] > -np.inf else 0.0
+    return _normalise_and_cut(w, mu, cov, n, weight_cut)
+
+
+@nb.njit(cache=True)
+def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
+    """χ² increment of the node with the collapsed predicted mixture (−1 on failure)."""
+    _collapse(w, mu, cov, n, mean, cmat)
+    chi2 = 0.0
+    for j in range(n_meas):
+        inc, s = _scalar_update(mean, cmat, hx[j], hy[j], m[j], sigma[j] * sigma[j])
+        if s <= 0.0:
+            return -1.0
+        chi2 += inc
+    return chi2
+
+
+@nb.njit(cache=True)
+def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, nearest_d, alive,
+             out_mean, out_cov, scratch, vec):
+    """Product of the forward-predicted and backward-filtered mixtures at a node, reduced;
+    writes the output state (mode or mean). Returns the product's component count (0 on
+    failure)."""
+    ssum = scratch[0]
+    sinv = scratch[1]
+    lu = scratch[2]
+    gain = scratch[3]
+    diff = vec[:5]
+    spd = vec[5:15]
+    n = 0
+    largest = -np.inf
+    for i in range(nf):
+        for j in range(nb_):
+            for k in range(5):
+                for l in range(5):
+                    ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
+            if not invert_spd(ssum, sinv, lu, spd):
+                continue
+            # log det of P_i + B_j from the equilibrated Cholesky factor in lu
+            logdet = 0.0
+            for k in range(5):
+                logdet += 2.0 * math.log(lu[k, k]) + math.log(ssum[k, k])
+            for k in range(5):
+                diff[k] = bmu[j, k] - fmu[i, k]
+            q = 0.0
+            for k in range(5):
+                s = 0.0
+                for l in range(5):
+                    s += sinv[k, l] * diff[l]
+                q += diff[k] * s
+            # K = P_i (P_i + B_j)⁻¹; mean = μ_i + K·diff; cov = P_i − K·P_i
+            for k in range(5):
+                for l in range(5):
+                    s = 0.0
+                    for r in range(5):
+                        s += fcov[i, k, r] * sinv[r, l]
+                    gain[k, l] = s
+            for k in range(5):
+                s = fmu[i, k]
+                for l in range(5):
+                    s += gain[k, l] * diff[l]
+                pmu[n, k] = s
+            for k in range(5):
+                for l in range(5):
+                    s = fcov[i, k, l]
+                    for r in range(5):
+                        s -= gain[k, r] * fcov[i, r, l]
+                    pcov[n, k, l] = s
+            symmetrise(pcov[n])
+            ok = True
+            for k in range(5):
+                if not pcov[n, k, k] > 0.0:
+                    ok = False
+            if not ok or not (fw[i] > 0.0 and bw[j] > 0.0):
+                continue
+            pw[n] = math.log(fw[i]) + math.log(bw[j]) - 0.5 * (q + logdet)
+            largest = max(largest, pw[n])
+            n += 1
+    if n == 0:
+        return 0
+    for c in range(n):
+        pw[c] = math.exp(pw[c] - largest)
+    n = _normalise_and_cut(pw, pmu, pcov, n, ctx.weight_cut)
+    n = _reduce(pw, pmu, pcov, n, ctx.max_components, nearest, nearest_d, alive)
+    if ctx.output == OUTPUT_MEAN:
+        _collapse(pw, pmu, pcov, n, out_mean, out_cov)
+    else:
+        if ctx.output == OUTPUT_MAX_WEIGHT:
+            best = _largest(pw, n)
+            copy5(pmu[best], out_mean)
+            _second_moment(pw, pmu, pcov, n, out_mean, out_cov)
+        else:
+            best = _mode_component(pw, pmu, pcov, n)
+            _peak(pw, pmu, pcov, n, best, ctx.peak_window, out_mean, out_cov)
+    return n
+
+
+# ----------------------------------------------------------------------------------
+# One GSF fit of one track and the batch kernel
+# ----------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
+               buf, pbuf, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov):
+    """Forward GSF, backward GSF and smoothing of one track. Returns (status, χ², number of
+    components of the smoothed mixture at the first node)."""
+    n = z.size
+    w, mu, cov, w2, mu2, cov2 = buf
+    pw, pmu, pcov = pbuf
+    mean = vec[15:20]
+    cmat = scratch[5]
+    chi2 = 0.0
+    # ---- forward filter
+    w[0] = 1.0
+    copy5(seed, mu[0])
+    copy55(seed_cov, cov[0])
+    nc = 1
+    for k in range(n):
+        if k > 0:
+            nc = _propagate(ctx, 1.0, z[k - 1], z[k], buf, nc, nearest, nearest_d, alive, scratch, bh)
+            if nc == 0:
+                return STATUS_EXTRAPOLATION_FAILED, chi2, 0
+        fwd_n[k] = nc
+        for c in range(nc):
+            _copy_component(w, mu, cov, c, fwd_w[k], fwd_mu[k], fwd_cov[k], c)
+        if k == 0:
+            # in the smoothing, the seed enters with a q/p width of at least
+            # seed_qop_fraction·|q/p| (see the module docstring)
+            wide = (ctx.seed_qop_fraction * seed[4]) ** 2
+            if wide > fwd_cov[0, 0, 4, 4]:
+                scale = math.sqrt(wide / fwd_cov[0, 0, 4, 4])
+                for i in range(5):
+                    fwd_cov[0, 0, 4, i] *= scale
+                    fwd_cov[0, 0, i, 4] *= scale
+        if active[k]:
+            inc = _predicted_chi2(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], mean, cmat)
+            if inc < 0.0:
+                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+            chi2 += inc
+            nc = _update(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], ctx.weight_cut)
+            if nc == 0:
+                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+    # ---- backward filter from a vague prior at the forward filter's final state
+    _collapse(w, mu, cov, nc, mean, cmat)
+    w[0] = 1.0
+    copy5(mean, mu[0])
+    for i in range(5):
+        for j in range(5):
+            cov[0, i, j] = 0.0
+    for i in range(4):
+        cov[0, i, i] = BACKWARD_PRIOR_VARIANCES[i]
+    cov[0, 4, 4] = (BACKWARD_PRIOR_QOP_FRACTION * mean[4]) ** 2
+    if not cov[0, 4, 4] > 0.0:
+        cov[0, 4, 4] = seed_cov[4, 4]
+    nc = 1
+    n_first = 0
+    for k in range(n - 1, -1, -1):
+        if k < n - 1:
+            nc = _propagate(ctx, -1.0, z[k + 1], z[k], buf, nc, nearest, nearest_d, alive, scratch, bh)
+            if nc == 0:
+                return STATUS_EXTRAPOLATION_FAILED, chi2, 0
+        if active[k]:
+            nc = _update(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], ctx.weight_cut)
+            if nc == 0:
+                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+        n_prod = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
+                          nearest, nearest_d, alive, out_state[k], out_cov[k], scratch, vec)
+        if n_prod == 0:
+            return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+        for i in range(5):
+            if not (out_cov[k, i, i] > 0.0 and math.isfinite(out_state[k, i])):
+                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+        n_first = n_prod
+    return STATUS_OK, chi2, n_first
+
+
+@nb.njit(cache=True)
+def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                   outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status,
+                   out_chi2, out_ndf, out_n_outliers, out_n_components):
+    """GSF of a batch of tracks (CSR nodes as `pkf.fit.kalman.fit_tracks`) with context ctx."""
+    n_tracks = offsets.size - 1
+    max_nodes = 1
+    for t in range(n_tracks):
+        max_nodes = max(max_nodes, offsets[t + 1] - offsets[t])
+    mc = ctx.max_components
+    k_bh = ctx.bh_coefficients.shape[1]
+    cap = max(mc * max(k_bh, 1), mc * mc, 2)
+    buf = (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)),
+           np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)))
+    pbuf = (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)))
+    fwd_w = np.zeros((max_nodes, mc))
+    fwd_mu = np.zeros((max_nodes, mc, 5))
+    fwd_cov = np.zeros((max_nodes, mc, 5, 5))
+    fwd_n = np.zeros(max_nodes, dtype=np.int64)
+    nearest = np.zeros(cap, dtype=np.int64)
+    nearest_d = np.zeros(cap)
+    alive = np.zeros(cap, dtype=np.bool_)
+    scratch = np.zeros((6, 5, 5))
+    bh = np.zeros((3, max(k_bh, 1)))
+    vec = np.zeros(20)
+    zero_cov = np.zeros((5, 5))
+    for t in range(n_tracks):
+        lo = offsets[t]
+        hi = offsets[t + 1]
+        n = hi - lo
+        active = out_active[lo:hi]
+        active[:] = True
+        n_out = 0
+        status = STATUS_OK
+        chi2 = 0.0
+        ndf = 0
+        n_comp = 0
+        ok_seed = True
+        for i in range(5):
+            if not math.isfinite(seeds[t, i]):
+                ok_seed = False
+        if not ok_seed:
+            status = STATUS_NO_SEED
+        while status == STATUS_OK:
+            ndf = -5
+            for k in range(n):
+                if active[k]:
+                    ndf += node_n_meas[lo + k]
+            if ndf <= 0:
+                status = STATUS_TOO_FEW_HITS
+                break
+            status, chi2, n_comp = _fit_track(
+                ctx, node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi], node_m[lo:hi],
+                node_sigma[lo:hi], active, seeds[t], seed_covs[t], fwd_w, fwd_mu, fwd_cov, fwd_n, buf, pbuf,
+                nearest, nearest_d, alive, scratch, bh, vec, out_state[lo:hi], out_cov[lo:hi])
+            if status != STATUS_OK:
+                break
+            worst = -1
+            worst_excess = 0.0
+            for k in range(n):
+                c_node = _node_chi2(out_state[lo + k], out_cov[lo + k], node_n_meas[lo + k], node_hx[lo + k],
+                                    node_hy[lo + k], node_m[lo + k], node_sigma[lo + k], active[k])
+                if c_node < 0.0:
+                    # a mixture's covariance ("mean", "max-weight" outputs) can exceed the
+                    # measurement variance: standardise by the measurement variance alone
+                    c_node = _node_chi2(out_state[lo + k], zero_cov, node_n_meas[lo + k], node_hx[lo + k],
+                                        node_hy[lo + k], node_m[lo + k], node_sigma[lo + k], active[k])
+                out_node_chi2[lo + k] = c_node
+                if active[k]:
+                    excess = c_node / outlier_cuts[node_n_meas[lo + k] - 1]
+                    if excess > worst_excess:
+                        worst_excess = excess
+                        worst = k
+            if status != STATUS_OK:
+                break
+            if n_out < max_outliers and worst >= 0 and worst_excess > 1.0:
+                active[worst] = False
+                n_out += 1
+                continue
+            break
+        if status != STATUS_OK:
+            out_state[lo:hi] = np.nan
+            out_cov[lo:hi] = np.nan
+        out_status[t] = status
+        out_chi2[t] = chi2 if status == STATUS_OK else np.nan
+        out_ndf[t] = ndf
+        out_n_outliers[t] = n_out
+        out_n_components[t] = n_comp
+
+
+def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray,
+                  beamline_extrapolator=None) -> GsfResult:
+    """GSF of every track of `batch` (a `TrackBatch`) with the context `extrapolator`
+    (`gsf_extrapolator`), from the Kalman fitters' seeds and seed covariances.
+    `options` (`FitOptions`): the outlier cut and maximum number of outliers."""
+    n = batch.z.size
+    t = batch.n_tracks
+    result = GsfResult(
+        node_state=np.full((n, 5), np.nan), node_cov=np.full((n, 5, 5), np.nan),
+        node_chi2=np.full(n, np.nan), node_active=np.ones(n, dtype=np.bool_),
+        status=np.zeros(t, dtype=np.int64), chi2=np.full(t, np.nan), ndf=np.zeros(t, dtype=np.int64),
+        n_outliers=np.zeros(t, dtype=np.int64), n_components=np.zeros(t, dtype=np.int64))
+    gsf_fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+                   np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
+                   options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
+                   result.node_chi2, result.node_active, result.status, result.chi2, result.ndf,
+                   result.n_outliers, result.n_components)
+    fit_locations(result, batch, beamline_extrapolator)
+    return result

@@ -1,0 +1,154 @@
+"""The global χ² fitter on the lhcb-like detector (issue 7)."""
+
+import numpy as np
+import pytest
+from fit_helpers import TruthSample
+
+from pkf.fit.gx2f import MAX_UPDATES, _propagate, _solve, fit_batch_gx2f
+from pkf.fit.linalg import search_sorted
+from pkf.fit.tracks import FitOptions
+from pkf.geometry import load_geometry
+from pkf.report.gauss import gaussian_core
+
+
+@pytest.fixture(scope="module")
+def pions():
+    return TruthSample(load_geometry("lhcb-like"), events=250, seed=37, particles=10,
+                       p_min=2000.0, p_max=100000.0, eta_min=2.0, eta_max=5.0)
+
+
+@pytest.fixture(scope="module")
+def fits(pions):
+    gx2f = fit_batch_gx2f(pions.extrapolator, pions.batch, FitOptions(), pions.seeds, pions.seed_covs,
+                          pions.beamline)
+    # the reference Kalman fit iterated once (linearised around its own first optimal
+    # states), i.e. at the minimum of the same χ²; see test_single_pass_kalman below
+    kalman = pions.fit(iterations=2)
+    return gx2f, kalman
+
+
+def test_first_hit_state_equals_the_reference_kalman(pions, fits):
+    gx2f, kalman = fits
+    long = pions.long_tracks()
+    assert long.sum() > 1500
+    same = long & (gx2f.status == 0) & (kalman.status == 0)
+    # same outliers removed (the comparison is of the same χ² minimum)
+    track = np.repeat(np.arange(pions.batch.n_tracks), pions.batch.n_nodes)
+    differs = np.bincount(track, weights=gx2f.node_active != kalman.node_active, minlength=same.size) > 0
+    assert np.mean(differs[long]) < 0.01
+    same &= ~differs
+    _, sg, _ = gx2f.locations["first_hit"]
+    _, sk, ck = kalman.locations["first_hit"]
+    sigma = np.sqrt(np.einsum("nii->ni", ck[same]))
+    rms = np.sqrt(np.mean(((sg[same] - sk[same]) / sigma) ** 2, axis=0))
+    assert np.all(rms < 0.1), rms
+    # and the covariance, χ² and ndf agree
+    _, _, cg = gx2f.locations["first_hit"]
+    ratio = np.sqrt(np.einsum("nii->ni", cg[same])) / sigma
+    assert np.all(np.abs(np.median(ratio, axis=0) - 1.0) < 0.01)
+    np.testing.assert_array_equal(gx2f.ndf[same], kalman.ndf[same])
+    assert np.median(np.abs(gx2f.chi2[same] - kalman.chi2[same])) < 0.01
+
+
+def test_pulls_and_convergence(pions, fits):
+    gx2f, _ = fits
+    long = pions.long_tracks()
+    assert np.mean(gx2f.status[long] == 0) > 0.999
+    pulls, _, _ = pions.first_hit_pulls(gx2f, long)
+    for i, name in enumerate(("x", "y", "tx", "ty", "qop")):
+        core = gaussian_core(pulls[:, i])
+        assert 0.95 <= core.sigma <= 1.10, (name, core)
+        assert abs(core.mean) < 0.1, (name, core)
+    ok = long & (gx2f.status == 0)
+    assert np.mean(gx2f.converged[ok]) >= 0.99
+    assert gx2f.iterations[ok].max() <= MAX_UPDATES
+    assert 0.9 <= np.mean(gx2f.chi2[ok] / gx2f.ndf[ok]) <= 1.15
+    # the beamline state exists for every good track
+    assert np.all(np.isfinite(gx2f.locations["beamline"][1][ok]))
+
+
+def _trajectory(ext, batch, t, alpha, theta):
+    lo, hi = batch.offsets[t], batch.offsets[t + 1]
+    n = hi - lo
+    slots = ext.plane_z.size + 1
+    arrays = dict(node_state=np.zeros((n, 5)), jac=np.zeros((n, 5, 5)), g=np.zeros((slots, 5, 2)),
+                  theta0=np.zeros(slots), step_plane=np.zeros(n + 1, dtype=np.int64))
+    plane_lo = search_sorted(ext.plane_z, batch.z[lo], True)
+    status = _propagate(ext, alpha, theta, batch.z[lo:hi], n, plane_lo, arrays["node_state"], arrays["jac"],
+                        arrays["g"], arrays["theta0"], arrays["step_plane"], np.zeros((5, 5)), np.zeros((5, 5)))
+    assert status == 0
+    return lo, hi, n, arrays
+
+
+def test_linear_time_solve_equals_the_dense_normal_equations(pions):
+    """The backward elimination of the angles + forward substitution gives the same
+    Gauss–Newton step, marginal covariance at the first node and node covariances as
+    solving the dense normal equations over (α, θ_1 … θ_M)."""
+    ext, batch = pions.extrapolator, pions.batch
+    t = int(np.flatnonzero(pions.long_tracks())[3])
+    alpha = pions.seeds[t].copy()
+    slots = ext.plane_z.size + 1
+    lo, hi, n, a = _trajectory(ext, batch, t, alpha, np.zeros((slots, 2)))
+    rng = np.random.default_rng(5)
+    theta = a["theta0"][:, None] * rng.normal(size=(slots, 2))  # non-zero current angles
+    lo, hi, n, a = _trajectory(ext, batch, t, alpha, theta)
+    n_slots = int(a["step_plane"][n])
+    used = np.flatnonzero(a["theta0"][:n_slots] > 0)
+    assert used.size > 10
+    # dense Jacobian D_k = ∂s_k/∂(α, θ_used) by the chain rule of the step pieces
+    n_par = 5 + 2 * used.size
+    col = {p: 5 + 2 * i for i, p in enumerate(used)}
+    d = np.zeros((n, 5, n_par))
+    d[0, :, :5] = np.eye(5)
+    for k in range(1, n):
+        d[k] = a["jac"][k] @ d[k - 1]
+        for p in range(a["step_plane"][k], a["step_plane"][k + 1]):
+            if p in col:
+                d[k][:, col[p]:col[p] + 2] += a["g"][p]
+    rows, rhs = [], []
+    for k in range(n):
+        for j in range(batch.n_meas[lo + k]):
+            h = np.array([batch.hx[lo + k, j], batch.hy[lo + k, j], 0, 0, 0])
+            s = batch.sigma[lo + k, j]
+            rows.append(h @ d[k] / s)
+            rhs.append((batch.m[lo + k, j] - h @ a["node_state"][k]) / s)
+    jac = np.array(rows)
+    lam = np.zeros(n_par)
+    prior = np.zeros(n_par)
+    for p, c in col.items():
+        lam[c:c + 2] = 1.0 / a["theta0"][p] ** 2
+        prior[c:c + 2] = theta[p] / a["theta0"][p] ** 2
+    normal = jac.T @ jac + np.diag(lam)
+    step = np.linalg.solve(normal, jac.T @ np.array(rhs) - prior)
+    cov = np.linalg.inv(normal)
+    # the linear-time solver
+    d_alpha = np.zeros(5)
+    d_theta = np.zeros((slots, 2))
+    node_cov = np.zeros((n, 5, 5))
+    ok = _solve(n, batch.n_meas[lo:hi], batch.hx[lo:hi], batch.hy[lo:hi], batch.m[lo:hi], batch.sigma[lo:hi],
+                np.ones(n, dtype=np.bool_), a["node_state"], a["jac"], a["g"], theta, a["theta0"],
+                a["step_plane"], np.zeros((slots, 2, 5)), np.zeros((slots, 2)), np.zeros((slots, 2, 2)), d_alpha,
+                d_theta, node_cov, *(np.zeros((5, 5)) for _ in range(1)), np.zeros(5), np.zeros((5, 2)),
+                *(np.zeros((5, 5)) for _ in range(4)), np.zeros(10))
+    assert ok
+    scale = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(d_alpha / scale[:5], step[:5] / scale[:5], atol=1e-6)
+    dense_theta = np.array([step[col[p]:col[p] + 2] for p in used])
+    np.testing.assert_allclose(d_theta[used], dense_theta, atol=1e-6 * a["theta0"][used].max())
+    np.testing.assert_allclose(node_cov[0], cov[:5, :5], rtol=1e-6, atol=0)
+    k = n - 1  # the last node's posterior covariance: D_k·Cov·D_kᵀ
+    np.testing.assert_allclose(node_cov[k], d[k] @ cov @ d[k].T, rtol=1e-5,
+                               atol=1e-9 * np.sqrt(np.outer(np.diag(node_cov[k]), np.diag(node_cov[k]))).max())
+
+
+def test_single_pass_kalman_is_not_at_the_minimum_for_low_momenta(pions, fits):
+    """For information (issue 7 note): the one-pass Kalman fit (linearised at its forward
+    filtered states) differs from the χ² minimum in q/p by up to several σ for 2–3 GeV
+    tracks whose seed q/p is 5–15% off; the GX2F and the iterated Kalman fit agree."""
+    gx2f, _ = fits
+    kalman1 = pions.fit(iterations=1)
+    long = pions.long_tracks() & (gx2f.status == 0) & (kalman1.status == 0)
+    _, sg, _ = gx2f.locations["first_hit"]
+    _, sk, ck = kalman1.locations["first_hit"]
+    q = np.abs(sg[long, 4] - sk[long, 4]) / np.sqrt(ck[long, 4, 4])
+    assert np.median(q) < 0.02
