@@ -89,14 +89,14 @@ def main() -> None:
     kalman = fit_batch(electrons.extrapolator, batch, options, seeds, covs, electrons.beamline)
     wall_kalman, kalman = best_of(args.repeat, lambda: fit_batch(electrons.extrapolator, batch, options, seeds,
                                                                  covs, electrons.beamline))
-    configs = [(f"gsf-{m}", dict(max_components=m)) for m in COMPONENTS]
-    configs.append(("gsf-12-own-jacobians", dict(max_components=12, share_jacobians=False)))
+    configs = [(f"gsf-{m}", {"max_components": m}) for m in COMPONENTS]
+    configs.append(("gsf-12-own-jacobians", {"max_components": 12, "share_jacobians": False}))
     fits = {}
     for name, kw in configs:
         ctx = gsf_extrapolator(geometry, **kw)
         fit_batch_gsf(ctx, warm, options, seeds[:3], covs[:3], electrons.beamline)
-        wall, fits[name] = best_of(args.repeat, lambda: fit_batch_gsf(ctx, batch, options, seeds, covs,
-                                                                      electrons.beamline))
+        wall, fits[name] = best_of(args.repeat, lambda ctx=ctx: fit_batch_gsf(ctx, batch, options, seeds, covs,
+                                                                              electrons.beamline))
         results["gsf"][name] = {"tracks": int(batch.n_tracks), "ms_per_track": 1e3 * wall / batch.n_tracks,
                                 "mean_components_first_hit": float(fits[name].n_components.mean())}
     ok = kalman.status == 0
@@ -131,7 +131,8 @@ def main() -> None:
     }
     for name, (ext, fit, opts) in runs.items():
         fit(ext, warm, opts, seeds[:3], covs[:3], pions.beamline)
-        wall, r = best_of(args.repeat, lambda: fit(ext, batch, opts, seeds, covs, pions.beamline))
+        wall, r = best_of(args.repeat, lambda fit=fit, ext=ext, opts=opts: fit(ext, batch, opts, seeds, covs,
+                                                                               pions.beamline))
         results["gx2f"][name] = {"tracks": int(batch.n_tracks), "ms_per_track": 1e3 * wall / batch.n_tracks,
                                  "ns_per_node": 1e9 * wall / batch.z.size, "ok_fraction": float(np.mean(r.status == 0))}
         if name == "gx2f":

@@ -71,8 +71,8 @@ def _trajectory(ext, batch, t, alpha, theta):
     lo, hi = batch.offsets[t], batch.offsets[t + 1]
     n = hi - lo
     slots = ext.plane_z.size + 1
-    arrays = dict(node_state=np.zeros((n, 5)), jac=np.zeros((n, 5, 5)), g=np.zeros((slots, 5, 2)),
-                  theta0=np.zeros(slots), step_plane=np.zeros(n + 1, dtype=np.int64))
+    arrays = {"node_state": np.zeros((n, 5)), "jac": np.zeros((n, 5, 5)), "g": np.zeros((slots, 5, 2)),
+              "theta0": np.zeros(slots), "step_plane": np.zeros(n + 1, dtype=np.int64)}
     plane_lo = search_sorted(ext.plane_z, batch.z[lo], True)
     status = _propagate(ext, alpha, theta, batch.z[lo:hi], n, plane_lo, arrays["node_state"], arrays["jac"],
                         arrays["g"], arrays["theta0"], arrays["step_plane"], np.zeros((5, 5)), np.zeros((5, 5)))

@@ -12,8 +12,8 @@ hypothesis, DESIGN §9.4–§9.5). Every fit function has the signature
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from pkf.errors import InputError, NotBuiltYet
 from pkf.fit.gsf import fit_batch_gsf, gsf_extrapolator

@@ -74,7 +74,15 @@ from pkf.fit.extrapolator import (
     STATUS_TOO_FEW_HITS,
 )
 from pkf.fit.kalman import _node_chi2
-from pkf.fit.linalg import copy5, copy55, invert_spd, sandwich, search_sorted, set_identity, symmetrise
+from pkf.fit.linalg import (
+    copy5,
+    copy55,
+    invert_spd,
+    sandwich,
+    search_sorted,
+    set_identity,
+    symmetrise,
+)
 from pkf.fit.reference import MAX_SLOPE
 from pkf.fit.tracks import FitResult
 from pkf.geometry.acceptance import in_active_area
@@ -409,7 +417,6 @@ def gx2f_fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m,
     step_plane = np.zeros(max_nodes + 1, dtype=np.int64)
     g = np.zeros((max_slots, 5, 2))
     theta = np.zeros((max_slots, 2))
-    best_theta = np.zeros((max_slots, 2))
     theta0 = np.zeros(max_slots)
     gain = np.empty((max_slots, 2, 5))
     offset = np.empty((max_slots, 2))

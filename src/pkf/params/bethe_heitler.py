@@ -240,7 +240,6 @@ def _lp_objective(a, b, g, target, p, mean_target, mean_weight):
     dm = 2.0 * mean_weight * (mean - mean_target)
     value = value + mean_weight * (mean - mean_target) ** 2
     gw = gw + dm[:, None] * (1.0 - d)
-    dmu = dmu  # the penalty's μ-derivative enters through b below
     ga = w * (gw - np.sum(gw * w, axis=1, keepdims=True))
     gb = -d * dmu + sig * dsig - dm[:, None] * w * d
     gg = sig * dsig
@@ -350,7 +349,7 @@ def fit_bethe_heitler_mixture(n_components: int = 8, t_min: float = T_MIN, t_max
 
 
 def _cdf_of(q, k, t):
-    w, d, sig, x, cdf, pdf = _mixture_terms(q[:k][None], q[k:2 * k][None], q[2 * k:][None], Z_GRID)
+    w, _, _, _, cdf, _ = _mixture_terms(q[:k][None], q[k:2 * k][None], q[2 * k:][None], Z_GRID)
     return np.einsum("tzk,tk->tz", cdf, w)[0]
 
 

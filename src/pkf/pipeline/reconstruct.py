@@ -22,7 +22,7 @@ from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import Fitter, get_fitter
 from pkf.params.parameter_set import load_parameters
-from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch, seed_batch
+from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json, check_output_dir, staged_output_dir
 from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES, pack_covariance, table_from_columns

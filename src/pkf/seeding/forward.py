@@ -145,7 +145,7 @@ class ForwardOptions:
     hough_tol_rel [3e-3]      + τ₁·|q/p|
     hough_min_x_layers [4]    x layers (of 6) in a q/p cluster
     node_spacing [0.5]        q/p node spacing of the scan in units of 1/p_table (3 GeV)
-    max_clusters [4]          q/p clusters followed into the SciFi per search
+    max_clusters [3]          q/p clusters followed into the SciFi per scan
     window_sigmas [4]         SciFi search windows and Δχ² cut [σ]
     max_branch [2]            hits kept per layer and branch (best Δχ²)
     scifi_min_hits [9]        SciFi hits (of 12)
@@ -157,7 +157,7 @@ class ForwardOptions:
                               + (slope_ms·q/p)² (scattering from the UT to the SciFi) [MeV]
     pseudo_floor [0.3]        added to the σ of the cluster pseudo-measurement [mm]
     ut_candidates [3]         best UT leaves whose q/p ranges (± hough_sigmas·σ) are scanned
-    stereo_candidates [8]     q/p clusters (best x-line χ²) checked on the stereo layers
+    stereo_candidates [6]     q/p clusters (best x-line χ²) checked on the stereo layers
     miss_penalty [9]          ranking of SciFi candidates: χ² − miss_penalty·(hits), lowest first
     good_pvalue [0.01]        an extension with this χ² p-value and ≥ 11 SciFi hits ends the search
     pvalue [1e-6]             p-value cut on the final χ² (ndf = hits − 1)
@@ -183,7 +183,7 @@ class ForwardOptions:
     hough_tol_rel: float = 3e-3
     hough_min_x_layers: int = 4
     node_spacing: float = 0.5
-    max_clusters: int = 4
+    max_clusters: int = 3
     window_sigmas: float = 4.0
     max_branch: int = 2
     scifi_min_hits: int = 9
@@ -194,7 +194,7 @@ class ForwardOptions:
     line_chi2: float = 9.0
     slope_ms: float = 1.7
     ut_candidates: int = 3
-    stereo_candidates: int = 8
+    stereo_candidates: int = 6
     miss_penalty: float = 9.0
     good_pvalue: float = 0.01
     pvalue: float = 1e-6
@@ -605,16 +605,50 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
     return best_n, best_nf, best_chi
 
 
+def _hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> np.ndarray:
+    """Breakpoints of the Hough coordinate t(q) (see `_t_of_q`): |q| = 0 and then every
+    point where the tolerance τ(q) = τ0 + τ1·|q| has grown by `ratio`, up to 2·q_max;
+    row 0: |q|, row 1: t = ln(1 + τ1·|q|/τ0)/τ1 (exact at the breakpoints)."""
+    qs = [0.0]
+    while qs[-1] < 2.0 * q_max and tau1 > 0:
+        qs.append((ratio * (tau0 + tau1 * qs[-1]) - tau0) / tau1)
+    if tau1 <= 0:
+        qs.append(2.0 * q_max)
+    q = np.array(qs)
+    t = np.log1p(tau1 * q / tau0) / tau1 if tau1 > 0 else q / tau0
+    return np.ascontiguousarray(np.vstack([q, t]))
+
+
 @nb.njit(cache=True, inline="always")
-def _t_of_q(q, tau0, tau1):
-    """Hough coordinate of q/p in units of the local tolerance τ(q) = τ0 + τ1·|q|."""
-    t = math.log1p(tau1 * abs(q) / tau0) / tau1
+def _t_of_q(q, tg):
+    """Hough coordinate of q/p in units of the local tolerance τ(q): piecewise linear
+    through the breakpoints tg (each interval's bin width lies between τ at its ends;
+    a logarithm per hit would cost more than the rest of the scan)."""
+    a = abs(q)
+    lo = 0
+    hi = tg.shape[1] - 1
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if tg[0, mid] <= a:
+            lo = mid
+        else:
+            hi = mid
+    t = tg[1, lo] + (a - tg[0, lo]) * (tg[1, hi] - tg[1, lo]) / (tg[0, hi] - tg[0, lo])
     return t if q >= 0.0 else -t
 
 
 @nb.njit(cache=True, inline="always")
-def _q_of_t(t, tau0, tau1):
-    q = tau0 * math.expm1(tau1 * abs(t)) / tau1
+def _q_of_t(t, tg):
+    a = abs(t)
+    lo = 0
+    hi = tg.shape[1] - 1
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if tg[1, mid] <= a:
+            lo = mid
+        else:
+            hi = mid
+    q = tg[0, lo] + (a - tg[1, lo]) * (tg[0, hi] - tg[0, lo]) / (tg[1, hi] - tg[1, lo])
     return q if t >= 0.0 else -q
 
 
@@ -715,78 +749,134 @@ def _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_no
     return score, n_found
 
 
-@nb.njit(cache=True)
-def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z, sig2, w_beta, chosen,
-                 rx):
-    """Straight-line test of a q/p cluster in the SciFi x layers.
+_MAX_PER_LAYER = 6  # entries per x layer considered in a cluster (nearest to the trajectory)
 
-    The entries kb … ke−1 (in e_order) are hits (e_hit) on x layer e_li; their x residual
-    to the trajectory at the cluster's q/p is rx = u − x_c[layer] (lin=False, x_c: the
-    interpolated trajectory) or, to first order, (t − t_c)·x_c[layer] (lin=True, x_c:
-    τ(q_c)·dx/dq; cheaper, for ranking). One entry per layer
-    (nearest to the trajectory, then nearest to the line) is fitted with rx = α + β·(z − z_0), β ~ N(0, 1/w_beta):
-    given q/p the VELO state predicts the direction in the SciFi, random coincidences of
-    implied q/p have random directions and do not line up. Returns (n_layers, χ², α, β).
-    """
-    for li in range(n_x):
-        chosen[li] = -1
-        rx[li] = 1e300
-    for kk in range(kb, ke):
-        ent = e_order[kk]
-        li = e_li[ent]
-        r = (e_t[ent] - t_c) * x_c[li] if lin else hu[e_hit[ent]] - x_c[li]
-        if abs(r) < abs(rx[li]):
-            rx[li] = r
-            chosen[li] = ent
-    alpha = 0.0
-    chi2 = 0.0
+
+@nb.njit(cache=True)
+def _line_fit(n_x, chosen, rx, x_z, sig2, w_beta):
+    """Least-squares line rx = α + β·(z − z_0) through the chosen layers with the prior
+    β ~ N(0, 1/w_beta). Returns (n, χ², α, β)."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    r0 = 0.0
+    r1 = 0.0
     n = 0
-    for iteration in range(2):
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        r0 = 0.0
-        r1 = 0.0
-        n = 0
-        for li in range(n_x):
-            if chosen[li] < 0:
-                continue
-            dz = x_z[li] - x_z[0]
-            s0 += 1.0
-            s1 += dz
-            s2 += dz * dz
-            r0 += rx[li]
-            r1 += rx[li] * dz
-            n += 1
-        if n == 0:
-            return 0, 0.0, 0.0, 0.0
-        s2 += w_beta * sig2
-        det = s0 * s2 - s1 * s1
-        alpha = (s2 * r0 - s1 * r1) / det
-        beta = (s0 * r1 - s1 * r0) / det
-        chi2 = beta * beta * w_beta
-        for li in range(n_x):
-            if chosen[li] >= 0:
-                res = rx[li] - alpha - beta * (x_z[li] - x_z[0])
-                chi2 += res * res / sig2
-        if iteration == 0:
-            # re-choose on every layer the entry nearest to the line
-            for li in range(n_x):
-                rx[li] = 1e300
-            for kk in range(kb, ke):
-                ent = e_order[kk]
-                li = e_li[ent]
-                r = (e_t[ent] - t_c) * x_c[li] if lin else hu[e_hit[ent]] - x_c[li]
-                pred = alpha + beta * (x_z[li] - x_z[0])
-                if abs(r - pred) < abs(rx[li] - pred):
-                    rx[li] = r
-                    chosen[li] = ent
+    for li in range(n_x):
+        if chosen[li] < 0:
+            continue
+        dz = x_z[li] - x_z[0]
+        s0 += 1.0
+        s1 += dz
+        s2 += dz * dz
+        r0 += rx[li]
+        r1 += rx[li] * dz
+        n += 1
+    if n == 0:
+        return 0, 0.0, 0.0, 0.0
+    s2 += w_beta * sig2
+    det = s0 * s2 - s1 * s1
+    if det <= 0.0:
+        return n, 0.0, r0 / s0, 0.0
+    alpha = (s2 * r0 - s1 * r1) / det
+    beta = (s0 * r1 - s1 * r0) / det
+    chi2 = beta * beta * w_beta
+    for li in range(n_x):
+        if chosen[li] >= 0:
+            res = rx[li] - alpha - beta * (x_z[li] - x_z[0])
+            chi2 += res * res / sig2
     return n, chi2, alpha, beta
 
 
 @nb.njit(cache=True)
-def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, s0, ds0, pc, q_lo,
-                  q_hi, W, cand):
+def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z, sig2, w_beta, chosen,
+                 rx, cand_e, cand_r, cand_n):
+    """Straight-line test of a q/p cluster in the SciFi x layers.
+
+    The entries kb … ke−1 (in e_order) are hits (e_hit) on x layer e_li; their x residual
+    to the trajectory at the cluster's q/p is r = u − x_c[layer] (lin=False, x_c: the
+    interpolated trajectory) or, to first order, (t − t_c)·x_c[layer] (lin=True, x_c:
+    τ(q_c)·dx/dq; cheaper, for ranking). Lines through one entry of the first and one of
+    the last layer (the _MAX_PER_LAYER nearest to the trajectory on each) pick the nearest
+    entry on every other layer; the best line by χ² is refitted with β ~ N(0, 1/w_beta):
+    given q/p the VELO state predicts the direction in the SciFi, random coincidences of
+    implied q/p have random directions and do not line up. Returns (n_layers, χ², α, β);
+    chosen[li] (entry or −1) and rx[li] its residual.
+    """
+    for li in range(n_x):
+        cand_n[li] = 0
+    for kk in range(kb, ke):
+        ent = e_order[kk]
+        li = e_li[ent]
+        r = (e_t[ent] - t_c) * x_c[li] if lin else hu[e_hit[ent]] - x_c[li]
+        m = cand_n[li]
+        if m < _MAX_PER_LAYER:
+            cand_n[li] = m + 1
+        elif abs(r) < abs(cand_r[li, m - 1]):
+            m = m - 1
+        else:
+            continue
+        while m > 0 and abs(cand_r[li, m - 1]) > abs(r):  # keep sorted by |r|
+            cand_r[li, m] = cand_r[li, m - 1]
+            cand_e[li, m] = cand_e[li, m - 1]
+            m -= 1
+        cand_r[li, m] = r
+        cand_e[li, m] = ent
+    lf = -1
+    ll = -1
+    for li in range(n_x):
+        if cand_n[li] > 0:
+            if lf < 0:
+                lf = li
+            ll = li
+    if lf < 0:
+        for li in range(n_x):
+            chosen[li] = -1
+        return 0, 0.0, 0.0, 0.0
+    best_chi = 1e300
+    best_a = 0.0
+    best_b = 0.0
+    for i1 in range(cand_n[lf]):
+        for i2 in range(cand_n[ll] if ll != lf else 1):
+            r1 = cand_r[lf, i1]
+            if ll != lf:
+                b_ = (cand_r[ll, i2] - r1) / (x_z[ll] - x_z[lf])
+            else:
+                b_ = 0.0
+            a_ = r1 - b_ * (x_z[lf] - x_z[0])
+            chi = b_ * b_ * w_beta
+            for li in range(n_x):
+                if cand_n[li] == 0:
+                    continue
+                pred = a_ + b_ * (x_z[li] - x_z[0])
+                bd = 1e300
+                for m in range(cand_n[li]):
+                    dd = abs(cand_r[li, m] - pred)
+                    if dd < bd:
+                        bd = dd
+                chi += bd * bd / sig2
+            if chi < best_chi:
+                best_chi = chi
+                best_a = a_
+                best_b = b_
+    for li in range(n_x):
+        chosen[li] = -1
+        if cand_n[li] == 0:
+            continue
+        pred = best_a + best_b * (x_z[li] - x_z[0])
+        bd = 1e300
+        for m in range(cand_n[li]):
+            dd = abs(cand_r[li, m] - pred)
+            if dd < bd:
+                bd = dd
+                chosen[li] = cand_e[li, m]
+                rx[li] = cand_r[li, m]
+    return _line_fit(n_x, chosen, rx, x_z, sig2, w_beta)
+
+
+@nb.njit(cache=True)
+def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, tgrid, s0, ds0, pc,
+                  q_lo, q_hi, W, cand):
     """Steps 2–3: q/p scan of the SciFi x layers over [q_lo, q_hi], then the combinatorial
     KF from the best clusters. s0/ds0: state at the last UT layer given q/p (conditional
     mean, s0[4] its q/p) and its derivative; pc = (σx², σxtx, σtx² at q/p = 0, the same
@@ -800,7 +890,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
     ut_prune, sf_prune, final_cut = cuts
     (ref_s, ref_F, ref_Q, work, ws, path, mode, fixed, x0, P0, bx, bP, qn, sxs, sdxs, sys_, sdys,
      nx_x, nx_q, nx_dq, e_t, e_bin, e_li, e_hit, e_order, bin_count, bin_start, cl_bin, cl_npop,
-     cl_key, chosen, rx, x_z, d_l, x_z_all, top) = W
+     cl_key, chosen, rx, x_z, d_l, x_z_all, mask_pop, cand_e, cand_r, cand_n, top) = W
     c_paths, c_n, c_chi, c_q, c_var, c_count = cand
     c_count[0] = 0
     n_fwd = f_layer.shape[0]
@@ -822,13 +912,11 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
                      sxs, sdxs, sys_, sdys, work)
     if st == TRANSPORT_FAILED:
         return 0
-    if iopt[_I_MAX_NODES] == 1:
-        return 0
     # ---- Hough coordinate t of every x-layer hit in the covered range: its implied q/p by
     # cubic Hermite interpolation of q(x) between the nodes (x is monotone in q/p; the hits
     # are visited in order of x, so the node interval only moves forward)
-    t_lo = _t_of_q(q_lo, tau0, tau1)
-    n_bins = min(int(_t_of_q(q_hi, tau0, tau1) - t_lo) + 1, max_bins)
+    t_lo = _t_of_q(q_lo, tgrid)
+    n_bins = min(int(_t_of_q(q_hi, tgrid) - t_lo) + 1, max_bins)
     q_rms = max(abs(q_lo), abs(q_hi))
     pcxx = pc[0] + pc[6] * q_rms * q_rms
     pcxt = pc[1] + pc[7] * q_rms * q_rms
@@ -876,7 +964,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
                 hx = nx_x[li, seg + 1] - nx_x[li, seg]
                 q = _hermite(nx_q[li, seg], nx_q[li, seg + 1], nx_dq[li, seg], nx_dq[li, seg + 1], hx,
                              (x - nx_x[li, seg]) / hx) if hx > 0.0 else nx_q[li, seg]
-            t = _t_of_q(q, tau0, tau1)
+            t = _t_of_q(q, tgrid)
             tb = t - t_lo
             if 0.0 <= tb < n_bins:
                 e_t[n_e] = t
@@ -885,8 +973,6 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
                 e_hit[n_e] = h
                 n_e += 1
             h += 1
-    if iopt[_I_MAX_NODES] == 2:
-        return n_e
     # ---- counting sort of the entries by bin
     for k in range(n_e):
         bin_count[e_bin[k]] += 1
@@ -899,36 +985,40 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         b = e_bin[k]
         e_order[bin_start[b] + bin_count[b]] = k
         bin_count[b] += 1
-    for k in range(n_e):
+    for k in range(n_e):  # bin_count now holds the x-layer mask of each bin
         bin_count[e_bin[k]] = 0
-    if iopt[_I_MAX_NODES] == 3:
-        return n_e
+    for k in range(n_e):
+        bin_count[e_bin[k]] |= 1 << e_li[k]
+    for m in range(1 << n_x):  # x layers in a mask, 0 if a station has none
+        npop = _popcount(m)
+        if iopt[_I_STATION_X] != 0:
+            smask = 0
+            for li in range(n_x):
+                if m & (1 << li):
+                    smask |= x_station_bit[li]
+            if smask != x_station_need:
+                npop = 0
+        mask_pop[m] = npop
     # ---- clusters: windows of two bins starting at every occupied bin; kept if they have
-    # enough x layers (≥ 1 per station) and no overlapping window has more
+    # enough x layers (≥ 1 per station, ≥ the fullest window's count − 1) and no
+    # overlapping window has more
     n_cl = 0
     k = 0
     while k < n_e:
         b = e_bin[e_order[k]]
-        end = bin_start[min(b + 2, n_bins)]
-        mask = 0
-        for kk in range(k, end):
-            mask |= 1 << e_li[e_order[kk]]
-        npop = _popcount(mask)
-        if iopt[_I_STATION_X] != 0:
-            smask = 0
-            for li in range(n_x):
-                if mask & (1 << li):
-                    smask |= x_station_bit[li]
-            if smask != x_station_need:
-                npop = 0
+        mask = bin_count[b] | (bin_count[b + 1] if b + 1 < n_bins else 0)
         cl_bin[n_cl] = b
-        cl_npop[n_cl] = npop
+        cl_npop[n_cl] = mask_pop[mask]
         n_cl += 1
         k = bin_start[b + 1]
+    max_pop = 0
+    for c_ in range(n_cl):
+        max_pop = max(max_pop, cl_npop[c_])
+    min_pop = max(iopt[_I_MIN_X], max_pop - 1)
     n_keep = 0
     for c_ in range(n_cl):
         npop = cl_npop[c_]
-        if npop < iopt[_I_MIN_X]:
+        if npop < min_pop:
             continue
         if c_ > 0 and cl_bin[c_ - 1] == cl_bin[c_] - 1 and cl_npop[c_ - 1] > npop:
             continue
@@ -944,7 +1034,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
     for c_ in range(n_cl):
         b = cl_bin[c_]
         t_c = t_lo + b + 1.0
-        q_c = _q_of_t(t_c, tau0, tau1)
+        q_c = _q_of_t(t_c, tgrid)
         tau_c = tau0 + tau1 * abs(q_c)
         k = 0
         while k < n_nodes - 2 and qn[k + 1] <= q_c:
@@ -957,7 +1047,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
         nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + 2, n_bins)], e_hit, e_t,
                                                e_li, e_order, hu, n_x, d_l, True, t_c, x_z, sig2, w_beta,
-                                               chosen, rx)
+                                               chosen, rx, cand_e, cand_r, cand_n)
         if nl_ < iopt[_I_MIN_X] or chi2l > opt[_O_LINE_CHI2] * max(nl_ - 1, 1):
             cl_key[c_] = 1e300
         else:
@@ -973,20 +1063,22 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         n_conf += 1
         cl_npop[best] = -cl_npop[best] - 1  # mark as confirmed
         b = cl_bin[best]
-        q_c = _q_of_t(t_lo + b + 1.0, tau0, tau1)
+        q_c = _q_of_t(t_lo + b + 1.0, tgrid)
         for li in range(n_x):
             d_l[li], _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[li] - n_ut, q_c)
         sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
         w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
         nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + 2, n_bins)], e_hit, e_t,
                                                e_li, e_order, hu, n_x, d_l, False, 0.0, x_z, sig2, w_beta,
-                                               chosen, rx)
+                                               chosen, rx, cand_e, cand_r, cand_n)
         sscore, _ = _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs,
                                   sdxs, sys_, sdys, q_c, alpha, beta, x_z[0], sig2, pc, z_ut, nsig)
         cl_key[best] += sscore
     for c_ in range(n_cl):
         if cl_npop[c_] >= 0:
             cl_key[c_] = 1e300  # not confirmed: not followed
+    for k in range(n_e):
+        bin_count[e_bin[k]] = 0
     # ---- follow the best clusters with the combinatorial KF (VELO prior, UT layers off)
     pm_depth = x_fwd[0]
     n_follow = 0
@@ -1003,28 +1095,27 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         kb = bin_start[b]
         ke = bin_start[min(b + 2, n_bins)]
         t_c = t_lo + b + 1.0
-        q_c = _q_of_t(t_c, tau0, tau1)
+        q_c = _q_of_t(t_c, tgrid)
         tau_c = tau0 + tau1 * abs(q_c)
         for li in range(n_x):
             d_l[li], _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[li] - n_ut, q_c)
         sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
         w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
         nl_, chi2l, alpha, beta = _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, d_l, False,
-                                               0.0, x_z, sig2, w_beta, chosen, rx)
+                                               0.0, x_z, sig2, w_beta, chosen, rx, cand_e, cand_r,
+                                               cand_n)
         # refined q/p: mean Hough coordinate of the chosen entries
         ts = 0.0
         for li in range(n_x):
             if chosen[li] >= 0:
                 ts += e_t[chosen[li]]
-        q_c = _q_of_t(ts / nl_, tau0, tau1)
-        # pseudo-measurement at the first x layer: its cluster hit, else the line
-        if chosen[0] >= 0:
-            xpm = hu[e_hit[chosen[0]]]
-            pm_var = opt[_O_PM_FLOOR] ** 2
-        else:
-            x_first, _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[0] - n_ut, q_c)
-            xpm = x_first + alpha
-            pm_var = sig2 + opt[_O_PM_FLOOR] ** 2
+        q_c = _q_of_t(ts / nl_, tgrid)
+        # pseudo-measurement at the first x layer: the cluster's straight line there, fitted
+        # without the slope prior (which may pull it by more than the hit spacing)
+        _, _, alpha, _ = _line_fit(n_x, chosen, rx, x_z, sig2, 0.0)
+        x_first, _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[0] - n_ut, q_c)
+        xpm = x_first + alpha
+        pm_var = sig2 + opt[_O_PM_FLOOR] ** 2
         st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_c, abs(q_c), ref_s,
                         ref_F, ref_Q, work)
         if st == TRANSPORT_FAILED:
@@ -1105,7 +1196,9 @@ def _workspace(n_fwd, n_sf, n_x, max_nodes_q, max_entries, max_bins, n_cand):
          np.zeros(max_entries + 1, dtype=np.int64), np.zeros(max_entries + 1, dtype=np.int64),
          np.zeros(max_entries + 1),
          np.full(n_x, -1, dtype=np.int64), np.zeros(n_x), np.zeros(n_x), np.zeros(n_x),
-         np.zeros(n_fwd), top_none)
+         np.zeros(n_fwd), np.zeros(1 << n_x, dtype=np.int64),
+         np.zeros((n_x, _MAX_PER_LAYER), dtype=np.int64), np.zeros((n_x, _MAX_PER_LAYER)),
+         np.zeros(n_x, dtype=np.int64), top_none)
     cand = (np.full((n_cand, n_fwd), -1, dtype=np.int64), np.zeros(n_cand, dtype=np.int64),
             np.zeros(n_cand), np.zeros(n_cand), np.zeros(n_cand), np.zeros(1, dtype=np.int64))
     return W, top_none, cand
@@ -1113,7 +1206,7 @@ def _workspace(n_fwd, n_sf, n_x, max_nodes_q, max_entries, max_bins, n_cand):
 
 @nb.njit(cache=True)
 def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hsig, opt, iopt, cuts,
-                   good_cut, max_entries, max_bins, out):
+                   good_cut, tgrid, max_entries, max_bins, out):
     (f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
      x_station_bit, x_station_need, n_ut) = geo
     ut_prune, sf_prune, final_cut = cuts
@@ -1265,7 +1358,9 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
         best_key[0] = 1e300
         final_ok = False
         full_done = False
-        for attempt in range(2):
+        u_lo = 0.0
+        u_hi = 0.0
+        for attempt in range(3):
             if attempt == 0:
                 if n_utc == 0:
                     q_lo = -qmax
@@ -1278,13 +1373,22 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
                         q_lo = min(q_lo, r_lo[c])
                         q_hi = max(q_hi, r_hi[c])
                     full_done = q_lo <= -qmax and q_hi >= qmax
+                    u_lo = q_lo
+                    u_hi = q_hi
             else:
+                # the rest of the range (overlapping the UT range by a few tolerances)
                 if final_ok or full_done or iopt[_I_FALLBACK] == 0:
                     break
-                q_lo = -qmax
-                q_hi = qmax
-            n_c = _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, s0,
-                                ds0, pc, q_lo, q_hi, W, cand)
+                if attempt == 1:
+                    q_lo = -qmax
+                    q_hi = _q_of_t(_t_of_q(u_lo, tgrid) + 4.0, tgrid)
+                else:
+                    q_lo = _q_of_t(_t_of_q(u_hi, tgrid) - 4.0, tgrid)
+                    q_hi = qmax
+                if q_hi <= q_lo:
+                    continue
+            n_c = _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, tgrid,
+                                s0, ds0, pc, q_lo, q_hi, W, cand)
             for c in range(n_c):
                 ok_c = _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, c_q[c], c_var[c],
                                  c_paths[c], ut_best, n_utc > 0, mode, fixed,
@@ -1531,6 +1635,7 @@ def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_
                 hu=hu, hsig=hsig, rows=rows, fopt=fopt, iopt=iopt, cuts=(ut_prune, sf_prune, final_cut),
                 good_cut=_chi2_table(options.good_pvalue, n_meas, 1),
                 ut_cut=_chi2_table(options.ut_pvalue, n_meas, 1),
+                tgrid=_hough_grid(options.hough_tol_abs, options.hough_tol_rel, 1.0 / options.p_min),
                 max_entries=max_entries, max_bins=max_bins, poly=poly, tref=tref, p_table=p_table,
                 events=events)
 
@@ -1568,7 +1673,8 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     if n and prep["n_events"]:
         _extend_kernel(ext, prep["poly"], prep["tref"], prep["geo"], prep["t_ev"], prep["state"],
                        prep["t_layer"], prep["lay_off"], prep["hu"], prep["hsig"], prep["fopt"],
-                       prep["iopt"], prep["cuts"], (prep["good_cut"], prep["ut_cut"]), prep["max_entries"],
+                       prep["iopt"], prep["cuts"], (prep["good_cut"], prep["ut_cut"]), prep["tgrid"],
+                       prep["max_entries"],
                        prep["max_bins"],
                        (out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf))
     rows = prep["rows"]
