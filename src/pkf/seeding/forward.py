@@ -3,72 +3,80 @@
 The triplet paper's "extrapolation technique": a VELO track (event, straight-line state
 (x, y, tx, ty) at a VELO layer, q/p unknown) is extended with the *parametrized*
 extrapolations of DESIGN §9.2 (no field map): VELO→UT (paper eqs. 15–20), UT and SciFi
-layer steps (eq. 14), the UT→SciFi table (eqs. 21–23) and the parametrized noise
-(eq. 11). Every search step is a linearised Kalman filter (KF) around a *reference
-trajectory* (the parametrized transport of the VELO state at a q/p hypothesis, with its
-Jacobians and its noise evaluated at that q/p), so windows scale with the q/p
-uncertainty and the multiple scattering of the hypothesis, and candidates are ranked by
-a χ² that includes the VELO–UT–SciFi consistency.
+layer steps (eq. 14), the UT→SciFi table (eqs. 21–23) and the parametrized noise (eq. 11),
+through `pkf.seeding.forward_steps`. Every search step is a linearised Kalman filter (KF)
+around a *reference trajectory* (the transport of the VELO state at a q/p hypothesis with
+its Jacobians, and its noise evaluated at that q/p), so windows scale with the q/p
+uncertainty and with the scattering of the hypothesis, and candidates are ranked by a χ²
+that contains the VELO–UT–SciFi consistency.
 
-Algorithm, per VELO track (all in one compiled kernel, no Python loop per track or hit)
----------------------------------------------------------------------------------------
-0. **Prior.** The VELO state with covariance diag(σx², σy², σtx², σty², σq²): σx² =
-   a² + (b·q)², σtx² = a′² + (b′·q)² (hit resolution ⊕ scattering in the VELO, measured
-   on lhcb-like minimum bias: `velo_*` options) and a flat-ish q/p prior.
-1. **UT search.** Reference trajectory at q/p = 0 (in the UT the field is weak: the
-   predicted u on each UT layer is linear in q/p to ≲ 20 µm up to 1.5 GeV), noise at
-   1/p_min. A depth-first combinatorial KF over the 4 UT layers: every hit in the
-   window of the first layer(s) opens a branch (the window covers |q/p| ≤ 1/p_min: the
-   q/p prior has σ = ``ut_q_prior``/p_min), later layers keep the ``max_branch`` best
-   hits by Δχ², one layer may be missing (≥ ``ut_min_hits`` = 3 of 4), and the best
-   leaf (most hits, then χ²) is the UT candidate; its χ² must pass ``ut_pvalue``. It is
-   re-fitted around its own q/p with the noise at that q/p: the q/p estimate from the
-   VELO→UT kink and the UT slope, its variance and the fitted UT state.
-2. **q/p scan in the SciFi (Hough in q/p).** The q/p range is the UT estimate ±
-   ``hough_sigmas``·σ (clipped to |q/p| ≤ 1/p_min) or, without UT candidate, all of
-   |q/p| ≤ 1/p_min. The state at the last UT layer *given q/p* (the conditional mean of
-   the fitted UT state, or the VELO prior carried through the UT) is transported to the
-   six SciFi x layers at q/p nodes spaced ``node_spacing``/p_table (0.5 → 9 nodes for
-   the full range); x(q/p) on each layer is a cubic Hermite interpolation of the nodes
-   (values and d/dq from the Jacobians; ≤ 0.3 mm error). Every x-layer hit inside the
-   covered x range gets its *implied q/p* (Newton inversion of the cubic). Hits of one
-   track agree on q/p up to the tolerance τ(q) = ``hough_tol_abs`` + ``hough_tol_rel``·|q|
-   (the slope uncertainty at the UT and the scattering in the SciFi); the implied
-   values are histogrammed in bins of one tolerance (t(q) = sign q·ln(1 + τ₁|q|/τ₀)/τ₁),
-   linear in the number of hits, and windows of two bins with hits on ≥
-   ``hough_min_x_layers`` x layers (≥ 1 per station) are the clusters, best first.
-3. **SciFi search.** For each of the best ``max_clusters`` clusters: a reference
-   trajectory at the cluster's q/p from the VELO state through the UT and all SciFi
-   layers (noise at that q/p); a KF from the VELO prior through the UT candidate's hits
-   (Δχ²-checked), a pseudo-measurement of x at the first SciFi x layer (the cluster's
-   position, σ = the cluster tolerance; it only narrows the search windows and is not
-   counted in χ²), then a depth-first combinatorial KF over the 12 SciFi layers:
-   windows of ``window_sigmas``·√(H·P·Hᵀ + σ²) (they scale with the q/p uncertainty),
-   stereo hits resolved by the filter itself (a u/v hit constrains y through the
-   stereo angle; wrong choices die on the next layers' Δχ²), the ``max_branch`` best
-   hits per layer, a missing-hit skip only where no hit is compatible, at most
-   12 − ``scifi_min_hits`` skips, and in every station ≥ 1 x and ≥ 1 stereo hit (the
-   long-reconstructible definition, DESIGN §10). Best candidate: most SciFi hits, then
-   lowest χ².
-4. **Fallback.** If the UT-seeded SciFi search finds nothing, the scan is repeated
-   without the UT candidate over the full q/p range (``no_ut_fallback``): a wrong UT
-   combination does not lose the track.
-5. **UT confirmation and final fit.** With the SciFi q/p (and its variance) as prior,
-   the UT hits are searched again in windows now set by the scattering at that
-   momentum (``ut_confirm_min_hits``), then a final KF (reference at the fitted q/p)
-   over the chosen UT and SciFi hits, dropping hits with Δχ² above window_sigmas²,
-   gives χ², ndf = n_hits − 1, q/p and its variance; the track is kept if its χ²
-   p-value is ≥ ``pvalue``.
+Algorithm, per VELO track (one compiled kernel over all tracks of a batch of events; no
+Python loop per track or hit; hits are looked up by bisection in u-sorted arrays per
+(event, layer))
+----------------------------------------------------------------------------------------
+0. **Prior.** The VELO state with covariance diag(σx², σy², σtx², σty², σq²): σx² = a² +
+   (b·q/p)², σtx² = a′² + (b′·q/p)² (hit resolution ⊕ scattering in the VELO, measured on
+   lhcb-like minimum bias: ``velo_*`` options), σq = 10/p_min. Carried through the UT
+   without hits it gives the state at the last UT layer *given q/p* (its conditional mean
+   is linear in q/p: the VELO→UT kink) and its conditional covariance.
+1. **UT search.** A depth-first combinatorial KF over the 4 UT layers around q/p = 0 with
+   the noise of 1/p_min (in the weak UT field the predicted u is linear in q/p to ≲ 20 µm
+   down to 1.5 GeV): until a first hit is attached every hit in the window (best
+   ``ut_first_branches`` by Δχ², the q/p prior σ = ``ut_q_prior``/p_min spans the range)
+   opens a branch, later layers keep ``ut_branch``; ≥ ``ut_min_hits`` of 4. The
+   ``ut_candidates`` best leaves (most hits, then χ²) are re-fitted around their own q/p
+   with the noise at that q/p; those passing ``ut_pvalue`` are the UT candidates: a q/p
+   estimate from the kink (σ ≈ 10–25 %), a q/p range ± ``hough_sigmas``·σ and the fitted
+   state at the last UT layer given q/p. In the dense core (UT strips measure u only) a
+   random combination often looks as good as the true one: the UT only guides the SciFi
+   search, and UT hits are attached at the end with the SciFi momentum (step 4).
+2. **q/p scan of the SciFi x layers (Hough in q/p)** for each start — the UT candidates,
+   best first, then (if no extension was accepted) the VELO prior alone over |q/p| ≤
+   1/p_min. The start state given q/p is transported to the SciFi layers at q/p nodes
+   (``node_spacing``/3 GeV apart, cubic Hermite in between: ≤ 0.3 mm); each x-layer hit in
+   the covered range gets its implied q/p (inverse Hermite, hits visited in x order) and a
+   Hough coordinate t in units of the tolerance τ(q) = ``hough_tol_abs`` +
+   ``hough_tol_rel``·|q/p| (piecewise linear in q/p between points where τ grows by 25 %).
+   Windows of ``window_bins`` bins (counting sort: linear in the hits) with ≥
+   ``hough_min_x_layers`` x layers, ≥ 1 per station and ≥ the fullest window's count − 1,
+   not beaten by an overlapping window, are the clusters.
+3. **Cluster ranking and SciFi search.** Each cluster's x residuals to the trajectory at
+   its q/p are fitted with a straight line (offset and slope, the slope with the prior of
+   the start state's direction given q/p: random coincidences of implied q/p have random
+   directions), the line through one entry of the first and one of the last layer that
+   best collects the others; the best ``stereo_candidates`` are checked on the stereo
+   layers (nearest u = x·cos α + y·sin α with x from the line, y from the start state);
+   key = χ²_x + Σ stereo Δχ² + window_sigmas² per missing layer. The best
+   ``max_clusters`` are followed: a reference trajectory at the cluster's q/p from the
+   VELO, the KF from the VELO prior through the start's UT hits (Δχ²-checked), a
+   pseudo-measurement of x at the first SciFi x layer from the cluster's line (narrows
+   the windows, not counted in χ²), then a depth-first combinatorial KF over the 12 SciFi
+   layers: windows of ``window_sigmas``·√(H·P·Hᵀ + σ²) (they scale with the q/p
+   uncertainty), stereo hits resolved by the filter (a u/v hit constrains y through the
+   stereo angle; wrong choices die on the next Δχ²), the ``max_branch`` best hits per
+   layer, a skip only where no hit is compatible, ≥ ``scifi_min_hits``, and in every
+   station ≥ 1 x and ≥ 1 stereo hit (the long-reconstructible definition, DESIGN §10).
+   Candidates are ranked by χ² − ``miss_penalty``·hits; following stops at a good, nearly
+   complete one.
+4. **UT confirmation and final fit**, candidates best first: the UT hits are searched
+   again with the SciFi q/p (± its σ) as prior, in windows now set by the scattering at
+   that momentum (``confirm_window_sigmas``, ≥ ``ut_confirm_min_hits``); a final KF at the
+   fitted q/p over the UT and SciFi hits (hits beyond ``window_sigmas`` are dropped) gives
+   χ², ndf = hits − 1, q/p and its variance. Accepted if ≥ ``scifi_min_hits`` SciFi hits
+   with the station requirement and p-value ≥ ``pvalue``; without UT hits (also tried when
+   the fit with them fails) ≥ ``no_ut_min_hits`` and p-value ≥ ``no_ut_pvalue`` (the
+   VELO–SciFi match alone must convince: most ghosts had no UT hit). The best accepted
+   extension (χ² − miss_penalty·hits) is kept; the search ends at one with p-value ≥
+   ``good_pvalue`` and ≥ 11 SciFi hits.
+5. Without an accepted extension the best UT candidate is returned as an upstream track
+   (STATUS_NO_SCIFI, q/p from the kink).
 
-Below the UT→SciFi table's p_min (3 GeV) the search uses the table's quadratic
-continuation (`pkf.seeding.forward_steps`); such tracks are found (their hits are as good
-as any), their q/p is biased by ≲ 1–2 % and ``below_table_p_min`` flags them: the
-parametrized Kalman fit returns status 4 there.
-
-Cost: per track a few reference trajectories (≈ 16 parametrized steps each), one q/p scan
-(nodes + the x-layer hits in the covered range, each looked up by binary search in hits
-sorted by u per (event, layer)), and KF branches limited by the windows: linear in the
-number of tracks and ~linear in the hit density.
+Momenta below the UT→SciFi table's p_min (3 GeV) are searched with the table's quadratic
+continuation (`pkf.seeding.forward_steps`): the hits found are as good as any, the q/p
+estimate is biased by ≲ 1–2 %, and ``below_table_p_min`` flags the track (the
+parametrized Kalman fit returns status 4 there). The per-layer SciFi steps of the shipped
+parameters underestimate the transport error at low momentum (KF pulls ≈ 3 after the
+T1→T2 gap at 2–3 GeV): their noise is inflated by 1 + (``scifi_model_noise``·q/p)².
 """
 
 from __future__ import annotations
@@ -81,9 +89,10 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pkf.errors import InputError
+from pkf.fit.parametrized import STEP_SCIFI, STEP_UT, STEP_UT_TO_SCIFI, STEP_VELO_TO_UT
 from pkf.geometry.detector import SUBDETECTORS, Geometry
+from pkf.params.ut_to_scifi import META_NX, META_NY, META_P_MIN, META_SIZE
 from pkf.seeding.forward_steps import (
-    TRANSPORT_BELOW_P_MIN,
     TRANSPORT_FAILED,
     new_table_buffers,
     reference_trajectory,
@@ -92,14 +101,14 @@ from pkf.seeding.forward_steps import (
 )
 
 __all__ = [
-    "ForwardOptions",
-    "ForwardTracks",
     "STATUS_INVALID",
     "STATUS_NAMES",
     "STATUS_NOT_FOUND",
     "STATUS_NO_SCIFI",
     "STATUS_NO_UT",
     "STATUS_OK",
+    "ForwardOptions",
+    "ForwardTracks",
     "extend_velo_tracks",
 ]
 
@@ -119,53 +128,63 @@ _MODE_OFF = 2
 # Per-kernel integer/float option vectors (see ForwardOptions.vectors)
 (_O_QMAX, _O_VSX, _O_VMSX, _O_VSTX, _O_VMSTX, _O_UT_QPRIOR, _O_WEAK_QPRIOR, _O_UT_NSIG,
  _O_HOUGH_NSIG, _O_TAU0, _O_TAU1, _O_NODE_DW, _O_NSIG, _O_PM_FLOOR, _O_LINE_SIG, _O_LINE_MS,
- _O_LINE_CHI2, _O_CONFIRM_NSIG, _O_MISS, _O_SLOPE_MS) = range(20)
-_N_FOPT = 20
+ _O_LINE_CHI2, _O_CONFIRM_NSIG, _O_MISS, _O_SLOPE_MS, _O_MODEL) = range(21)
+_N_FOPT = 21
 (_I_UT_MIN, _I_UT_FIRST, _I_BRANCH, _I_MIN_X, _I_MAX_CLUSTERS, _I_SF_MIN, _I_FALLBACK,
- _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X, _I_UT_CANDIDATES, _I_STEREO_CANDIDATES) = range(13)
-_N_IOPT = 13
+ _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X, _I_UT_CANDIDATES, _I_STEREO_CANDIDATES,
+ _I_NOUT_MIN, _I_UT_REFITS, _I_UT_BRANCH, _I_WINDOW_BINS) = range(17)
+_N_IOPT = 17
 
 
 @dataclass(frozen=True)
 class ForwardOptions:
-    """Options of `extend_velo_tracks` (defaults in brackets). Units: MeV, mm.
+    """Options of `extend_velo_tracks` (defaults in brackets; see the module docstring for
+    the steps 0–5 they belong to). Units: MeV, mm.
 
-    p_min [1500]              lowest momentum searched: |q/p| ≤ 1/p_min
-    velo_sigma_x [0.01]       VELO state position error at high momentum [mm]
-    velo_ms_x [130]           + its scattering part: σx² = a² + (velo_ms_x·q/p)² [mm·MeV]
-    velo_sigma_tx [3e-5]      VELO slope error at high momentum
-    velo_ms_tx [2.2]          + scattering part: σtx² = a² + (velo_ms_tx·q/p)² [MeV]
-    ut_q_prior [0.5]          σ of the q/p prior of the UT search, in units of 1/p_min
-    ut_window_sigmas [4]      UT search windows [σ]
-    ut_min_hits [3]           UT hits (of 4) for a UT candidate
-    ut_first_branches [16]    branches per layer until the first UT hit is attached
-    ut_pvalue [1e-3]          p-value cut of the UT candidate's χ²
-    hough_sigmas [4]          q/p scan range around the UT estimate [σ]
-    hough_tol_abs [1e-7]      q/p scan tolerance τ₀ [1/MeV]
-    hough_tol_rel [3e-3]      + τ₁·|q/p|
-    hough_min_x_layers [4]    x layers (of 6) in a q/p cluster
-    node_spacing [0.5]        q/p node spacing of the scan in units of 1/p_table (3 GeV)
-    max_clusters [3]          q/p clusters followed into the SciFi per scan
-    window_sigmas [4]         SciFi search windows and Δχ² cut [σ]
-    max_branch [2]            hits kept per layer and branch (best Δχ²)
-    scifi_min_hits [9]        SciFi hits (of 12)
-    station_x_and_stereo [True] ≥ 1 x and ≥ 1 stereo hit in each SciFi station
-    line_sigma [0.15]         σ of an x hit about the straight line through a cluster [mm]
-    line_ms [1600]            + scattering in the SciFi: σ² = line_sigma² + (line_ms·q/p)² [mm·MeV]
-    line_chi2 [9]             cut on the cluster line χ²/ndf
-    slope_ms [1.7]            slope prior of the line: σ² = σtx²(given q/p, last UT layer)
-                              + (slope_ms·q/p)² (scattering from the UT to the SciFi) [MeV]
-    pseudo_floor [0.3]        added to the σ of the cluster pseudo-measurement [mm]
-    ut_candidates [3]         best UT leaves whose q/p ranges (± hough_sigmas·σ) are scanned
-    stereo_candidates [6]     q/p clusters (best x-line χ²) checked on the stereo layers
-    miss_penalty [9]          ranking of SciFi candidates: χ² − miss_penalty·(hits), lowest first
-    good_pvalue [0.01]        an extension with this χ² p-value and ≥ 11 SciFi hits ends the search
-    pvalue [1e-6]             p-value cut on the final χ² (ndf = hits − 1)
-    no_ut_fallback [True]     rescan without the UT candidate when it leads nowhere
-    ut_confirm_min_hits [2]   UT hits re-collected with the SciFi q/p (0: keep the search's)
-    confirm_window_sigmas [3] UT confirmation windows [σ]
-    quadratic_continuation [True] continue the UT→SciFi table quadratically below p_min
-    max_nodes [4000]          visited search nodes per search (a safety cap)
+    p_min [1500]               lowest momentum searched: |q/p| ≤ 1/p_min
+    velo_sigma_x [0.01]        (0) VELO state position error at high momentum [mm]
+    velo_ms_x [130]            … its scattering part: σx² = a² + (velo_ms_x·q/p)² [mm·MeV]
+    velo_sigma_tx [3e-5]       (0) VELO slope error at high momentum
+    velo_ms_tx [2.2]           … its scattering part: σtx² = a² + (velo_ms_tx·q/p)² [MeV]
+    ut_q_prior [0.5]           (1) σ of the q/p prior of the UT search [1/p_min]
+    ut_window_sigmas [4]       (1) UT search windows [σ]
+    ut_min_hits [3]            (1) UT hits (of 4) of a UT candidate
+    ut_first_branches [8]      (1) branches per layer until a first UT hit is attached
+    ut_branch [2]              (1) branches per layer after it
+    ut_candidates [3]          (1) UT leaves re-fitted and used as starts
+    ut_refits [1]              (1) re-fits of a leaf around its own q/p
+    ut_pvalue [1e-3]           (1) p-value cut of a re-fitted UT candidate
+    hough_sigmas [4]           (2) q/p range around a UT estimate [σ]
+    hough_tol_abs [1e-7]       (2) tolerance τ₀ of the q/p scan [1/MeV]
+    hough_tol_rel [3e-3]       (2) … + τ₁·|q/p|
+    window_bins [2]            (2) bins (of width τ) per cluster window
+    hough_min_x_layers [4]     (2) x layers (of 6) in a cluster
+    node_spacing [0.5]         (2) q/p node spacing [1/(3 GeV)]
+    station_x_and_stereo [True] (2, 3) ≥ 1 x (and ≥ 1 stereo) hit in each SciFi station
+    line_sigma [0.15]          (3) σ of an x hit about its cluster's line [mm]
+    line_ms [1600]             (3) … ⊕ scattering in the SciFi: (line_ms·q/p) [mm·MeV]
+    slope_ms [1.7]             (3) slope prior of the line: σ² = σtx²(start, given q/p) +
+                               (slope_ms·q/p)² (scattering UT → SciFi) [MeV]
+    line_chi2 [9]              (3) cut on the line χ²/ndf
+    stereo_candidates [6]      (3) clusters checked on the stereo layers
+    max_clusters [3]           (3) clusters followed by the combinatorial KF per scan
+    pseudo_floor [0.3]         (3) added in quadrature to the pseudo-measurement σ [mm]
+    window_sigmas [5]          (3, 4) SciFi windows and Δχ² cut [σ]
+    max_branch [2]             (3, 4) hits kept per layer and branch (best Δχ²)
+    scifi_min_hits [10]        (3, 4) SciFi hits (of 12)
+    miss_penalty [9]           (3, 4) ranking: χ² − miss_penalty·hits, lowest first
+    scifi_model_noise [6450]   (3, 4) noise of the SciFi layer steps × (1 + (this·q/p)²) [MeV]
+    ut_confirm_min_hits [2]    (4) UT hits re-collected with the SciFi q/p (0: keep the start's)
+    confirm_window_sigmas [3]  (4) UT confirmation windows [σ]
+    pvalue [1e-4]              (4) p-value cut on the final χ² (ndf = hits − 1)
+    no_ut_min_hits [11]        (4) SciFi hits of an extension without UT hits
+    no_ut_pvalue [0.01]        (4) … and its p-value cut
+    good_pvalue [0.01]         (4) an accepted extension with this p-value and ≥ 11 SciFi
+                               hits ends the search of its track
+    no_ut_fallback [True]      (2) scan with the VELO prior alone when the UT starts fail
+    quadratic_continuation [True] continue the UT→SciFi table quadratically below its p_min
+                               (False: linearly, as `pkf.params.ut_to_scifi`)
+    max_nodes [4000]           visited KF nodes per combinatorial search (a safety cap)
     """
 
     p_min: float = 1500.0
@@ -176,28 +195,34 @@ class ForwardOptions:
     ut_q_prior: float = 0.5
     ut_window_sigmas: float = 4.0
     ut_min_hits: int = 3
-    ut_first_branches: int = 16
+    ut_first_branches: int = 8
+    ut_branch: int = 2
+    ut_refits: int = 1
     ut_pvalue: float = 1e-3
     hough_sigmas: float = 4.0
     hough_tol_abs: float = 1e-7
     hough_tol_rel: float = 3e-3
     hough_min_x_layers: int = 4
+    window_bins: int = 2
     node_spacing: float = 0.5
     max_clusters: int = 3
-    window_sigmas: float = 4.0
+    window_sigmas: float = 5.0
     max_branch: int = 2
-    scifi_min_hits: int = 9
+    scifi_min_hits: int = 10
+    no_ut_min_hits: int = 11
+    no_ut_pvalue: float = 0.01
     station_x_and_stereo: bool = True
     pseudo_floor: float = 0.3
     line_sigma: float = 0.15
     line_ms: float = 1600.0
     line_chi2: float = 9.0
     slope_ms: float = 1.7
+    scifi_model_noise: float = 6450.0
     ut_candidates: int = 3
     stereo_candidates: int = 6
     miss_penalty: float = 9.0
     good_pvalue: float = 0.01
-    pvalue: float = 1e-6
+    pvalue: float = 1e-4
     no_ut_fallback: bool = True
     ut_confirm_min_hits: int = 2
     confirm_window_sigmas: float = 3.0
@@ -218,7 +243,11 @@ class ForwardOptions:
             (self.max_clusters >= 1, "max_clusters must be ≥ 1"),
             (1 <= self.max_branch <= _MAX_CHILDREN - 1 and 1 <= self.ut_first_branches <= _MAX_CHILDREN - 1,
              f"branches must be in 1..{_MAX_CHILDREN - 1}"),
-            (self.scifi_min_hits >= 1, "scifi_min_hits must be ≥ 1"),
+            (self.scifi_min_hits >= 1 and self.no_ut_min_hits >= 1, "minimum hit counts must be ≥ 1"),
+            (1 <= self.ut_branch <= _MAX_CHILDREN - 1, f"ut_branch must be in 1..{_MAX_CHILDREN - 1}"),
+            (self.ut_candidates >= 1 and self.stereo_candidates >= 1 and self.window_bins >= 1
+             and self.ut_refits >= 1, "candidate counts, window_bins and ut_refits must be ≥ 1"),
+            (0.0 <= self.no_ut_pvalue < 1.0 and 0.0 <= self.good_pvalue < 1.0, "p-values must be in [0, 1)"),
             (self.ut_confirm_min_hits >= 0, "ut_confirm_min_hits must be ≥ 0"),
             (self.max_nodes >= 16, "max_nodes must be ≥ 16"),
         )
@@ -247,6 +276,7 @@ class ForwardOptions:
         f[_O_LINE_CHI2] = self.line_chi2
         f[_O_MISS] = self.miss_penalty
         f[_O_SLOPE_MS] = self.slope_ms
+        f[_O_MODEL] = self.scifi_model_noise
         f[_O_CONFIRM_NSIG] = self.confirm_window_sigmas
         i = np.zeros(_N_IOPT, dtype=np.int64)
         i[_I_UT_MIN] = self.ut_min_hits
@@ -262,6 +292,10 @@ class ForwardOptions:
         i[_I_STATION_X] = int(self.station_x_and_stereo)
         i[_I_UT_CANDIDATES] = self.ut_candidates
         i[_I_STEREO_CANDIDATES] = self.stereo_candidates
+        i[_I_NOUT_MIN] = self.no_ut_min_hits
+        i[_I_UT_REFITS] = self.ut_refits
+        i[_I_UT_BRANCH] = self.ut_branch
+        i[_I_WINDOW_BINS] = self.window_bins
         return f, i
 
 
@@ -312,25 +346,33 @@ class ForwardTracks:
 
 @nb.njit(cache=True, inline="always")
 def _predict(F, Q, x, P, x_out, P_out, tmp):
-    """x_out = F·x, P_out = F·P·Fᵀ + Q."""
-    for i in range(5):
+    """x_out = F·x, P_out = F·P·Fᵀ + Q for the parametrized steps: q/p is transported
+    unchanged (F row 4 = e₄) and has no noise (Q row/column 4 = 0)."""
+    for i in range(4):
         acc = 0.0
         for k in range(5):
             acc += F[i, k] * x[k]
         x_out[i] = acc
-    for i in range(5):
+    x_out[4] = x[4]
+    for i in range(4):
         for k in range(5):
             acc = 0.0
             for m in range(5):
                 acc += F[i, m] * P[m, k]
             tmp[i, k] = acc
-    for i in range(5):
-        for k in range(i, 5):
+    for k in range(5):
+        tmp[4, k] = P[4, k]
+    for i in range(4):
+        for k in range(i, 4):
             acc = Q[i, k]
             for m in range(5):
                 acc += tmp[i, m] * F[k, m]
             P_out[i, k] = acc
             P_out[k, i] = acc
+        acc = tmp[i, 4]  # (F·P)[i, 4] · F[4, 4] = 1
+        P_out[i, 4] = acc
+        P_out[4, i] = acc
+    P_out[4, 4] = P[4, 4]
 
 
 @nb.njit(cache=True, inline="always")
@@ -361,19 +403,43 @@ def _velo_prior(opt, q_noise, sigma_q, P):
 
 @nb.njit(cache=True)
 def _reference(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_v, q, q_noise, ref_s, ref_F, ref_Q,
-               work):
+               work, opt_model):
     """Reference trajectory from VELO layer a through forward layers 0 … j_end−1 at
     q/p = q; noise at q_noise. Returns the worst transport status."""
     s_in = work[0, 0]
     for i in range(4):
         s_in[i] = s_v[i]
     s_in[4] = q
-    return reference_trajectory(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_in, q_noise, ref_s,
-                                ref_F, ref_Q, work[0, 1])
+    st = reference_trajectory(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_in, q_noise, ref_s,
+                              ref_F, ref_Q, work[0, 1])
+    # model error of the SciFi layer steps at low momentum (see ForwardOptions.scifi_model_noise)
+    f = 1.0 + (opt_model * q_noise) ** 2
+    for j in range(n_ut + 1, j_end):
+        for i in range(5):
+            for k in range(5):
+                ref_Q[j, i, k] *= f
+    return st
+
+
+@nb.njit(cache=True, inline="always")
+def _maybe_crossed(x, y, vx, vy, acc):
+    """False if (x, y) with variances (vx, vy) is outside the active area acc (half_x,
+    half_y, hole radius, hole half_x, hole half_y) by more than 3σ."""
+    sx = 3.0 * math.sqrt(max(vx, 0.0))
+    sy = 3.0 * math.sqrt(max(vy, 0.0))
+    if abs(x) - sx > acc[0] or abs(y) - sy > acc[1]:
+        return False
+    if acc[2] > 0.0:
+        r = math.sqrt(x * x + y * y)
+        if r + math.sqrt(sx * sx + sy * sy) < acc[2]:
+            return False
+    if acc[3] > 0.0 and abs(x) + sx < acc[3] and abs(y) + sy < acc[4]:
+        return False
+    return True
 
 
 @nb.njit(cache=True)
-def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, pm_value, pm_var,
             nsig, first_branches, max_branch, max_skip, min_hits, skip_first, need, chi2_prune,
             max_nodes, ws, best_path, best_x, best_P, top, miss_penalty):
@@ -445,6 +511,9 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_bit
             sbase[d] = sb
             nc = 0
             md = mode[j]
+            if md != _MODE_OFF and not _maybe_crossed(ref_s[j, 0] + pred_x[d, 0], ref_s[j, 1] + pred_x[d, 1],
+                                                      pred_P[d, 0, 0], pred_P[d, 1, 1], f_acc[j]):
+                md = _MODE_OFF  # certainly outside the active area: no hit, not a missing one
             lo = lay_off_e[j]
             hi = lay_off_e[j + 1]
             if md == _MODE_FIXED:
@@ -740,8 +809,7 @@ def _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_no
         h = lo
         while h < loe[j + 1] and hu[h] <= up + hw:
             c2 = (hu[h] - up) ** 2 / var
-            if c2 < best:
-                best = c2
+            best = min(best, c2)
             h += 1
         if best < nsig * nsig:
             n_found += 1
@@ -852,8 +920,7 @@ def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z,
                 bd = 1e300
                 for m in range(cand_n[li]):
                     dd = abs(cand_r[li, m] - pred)
-                    if dd < bd:
-                        bd = dd
+                    bd = min(bd, dd)
                 chi += bd * bd / sig2
             if chi < best_chi:
                 best_chi = chi
@@ -876,18 +943,19 @@ def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z,
 
 @nb.njit(cache=True)
 def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, tgrid, s0, ds0, pc,
-                  q_lo, q_hi, W, cand):
+                  q_lo, q_hi, ut_hits, W, cand):
     """Steps 2–3: q/p scan of the SciFi x layers over [q_lo, q_hi], then the combinatorial
-    KF from the best clusters. s0/ds0: state at the last UT layer given q/p (conditional
+    KF from the best clusters (through the UT hits ut_hits, −1: none, then the SciFi
+    layers). s0/ds0: state at the last UT layer given q/p (conditional
     mean, s0[4] its q/p) and its derivative; pc = (σx², σxtx, σtx² at q/p = 0, the same
     ∝ (q/p)² per (1/MeV)²): the conditional covariance at the last UT layer.
 
     cand = (paths (M, n_fwd), n_sf (M), χ² (M), q (M), var (M), count (1)): the SciFi
     candidates, best first (χ² − miss_penalty·hits).
     """
-    (f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
+    (f_layer, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
      x_station_bit, x_station_need, n_ut) = geo
-    ut_prune, sf_prune, final_cut = cuts
+    ut_prune, sf_prune, final_cut, noutcut, good_cut = cuts
     (ref_s, ref_F, ref_Q, work, ws, path, mode, fixed, x0, P0, bx, bP, qn, sxs, sdxs, sys_, sdys,
      nx_x, nx_q, nx_dq, e_t, e_bin, e_li, e_hit, e_order, bin_count, bin_start, cl_bin, cl_npop,
      cl_key, chosen, rx, x_z, d_l, x_z_all, mask_pop, cand_e, cand_r, cand_n, top) = W
@@ -899,6 +967,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
     tau1 = opt[_O_TAU1]
     nsig = opt[_O_NSIG]
     miss = opt[_O_MISS]
+    n_win = iopt[_I_WINDOW_BINS]
     max_entries = e_t.shape[0]
     max_bins = bin_count.shape[0] - 1
     if not q_hi > q_lo:
@@ -1006,7 +1075,9 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
     k = 0
     while k < n_e:
         b = e_bin[e_order[k]]
-        mask = bin_count[b] | (bin_count[b + 1] if b + 1 < n_bins else 0)
+        mask = 0
+        for bb in range(b, min(b + n_win, n_bins)):
+            mask |= bin_count[bb]
         cl_bin[n_cl] = b
         cl_npop[n_cl] = mask_pop[mask]
         n_cl += 1
@@ -1033,7 +1104,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
     ms = opt[_O_LINE_MS]
     for c_ in range(n_cl):
         b = cl_bin[c_]
-        t_c = t_lo + b + 1.0
+        t_c = t_lo + b + 0.5 * n_win
         q_c = _q_of_t(t_c, tgrid)
         tau_c = tau0 + tau1 * abs(q_c)
         k = 0
@@ -1045,7 +1116,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
             d_l[li] = tau_c * (sdxs[k, col] + u * (sdxs[k + 1, col] - sdxs[k, col]))
         sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
         w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
-        nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + 2, n_bins)], e_hit, e_t,
+        nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + n_win, n_bins)], e_hit, e_t,
                                                e_li, e_order, hu, n_x, d_l, True, t_c, x_z, sig2, w_beta,
                                                chosen, rx, cand_e, cand_r, cand_n)
         if nl_ < iopt[_I_MIN_X] or chi2l > opt[_O_LINE_CHI2] * max(nl_ - 1, 1):
@@ -1063,12 +1134,12 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         n_conf += 1
         cl_npop[best] = -cl_npop[best] - 1  # mark as confirmed
         b = cl_bin[best]
-        q_c = _q_of_t(t_lo + b + 1.0, tgrid)
+        q_c = _q_of_t(t_lo + b + 0.5 * n_win, tgrid)
         for li in range(n_x):
             d_l[li], _ = _node_interp(qn, n_nodes, sxs, sdxs, x_fwd[li] - n_ut, q_c)
         sig2 = opt[_O_LINE_SIG] ** 2 + (ms * q_c) ** 2
         w_beta = 1.0 / (pc[2] + (pc[8] + opt[_O_SLOPE_MS] ** 2) * q_c * q_c)
-        nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + 2, n_bins)], e_hit, e_t,
+        nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + n_win, n_bins)], e_hit, e_t,
                                                e_li, e_order, hu, n_x, d_l, False, 0.0, x_z, sig2, w_beta,
                                                chosen, rx, cand_e, cand_r, cand_n)
         sscore, _ = _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs,
@@ -1093,8 +1164,8 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         n_follow += 1
         b = cl_bin[best]
         kb = bin_start[b]
-        ke = bin_start[min(b + 2, n_bins)]
-        t_c = t_lo + b + 1.0
+        ke = bin_start[min(b + n_win, n_bins)]
+        t_c = t_lo + b + 0.5 * n_win
         q_c = _q_of_t(t_c, tgrid)
         tau_c = tau0 + tau1 * abs(q_c)
         for li in range(n_x):
@@ -1117,17 +1188,21 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         xpm = x_first + alpha
         pm_var = sig2 + opt[_O_PM_FLOOR] ** 2
         st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_c, abs(q_c), ref_s,
-                        ref_F, ref_Q, work)
+                        ref_F, ref_Q, work, opt[_O_MODEL])
         if st == TRANSPORT_FAILED:
             continue
         for j in range(n_fwd):
-            mode[j] = _MODE_OFF if j < n_ut else _MODE_SEARCH
+            if j < n_ut:
+                mode[j] = _MODE_FIXED if ut_hits[j] >= 0 else _MODE_OFF
+                fixed[j] = ut_hits[j]
+            else:
+                mode[j] = _MODE_SEARCH
         for i in range(4):
             x0[i] = 0.0
         x0[4] = -q_c
         _velo_prior(opt, abs(q_c), opt[_O_WEAK_QPRIOR], P0)
         n_sf, _, chi_c = _search(
-            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, xpm, pm_var,
             nsig, iopt[_I_BRANCH], iopt[_I_BRANCH], n_fwd - n_ut - iopt[_I_SF_MIN],
             iopt[_I_SF_MIN], False, sf_need, sf_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top, miss)
@@ -1168,6 +1243,8 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
             c_paths[pos, j] = path[j]
         if nc < c_n.shape[0]:
             c_count[0] = nc + 1
+        if n_sf >= n_fwd - n_ut - 1 and _pvalue_ok(chi_c, n_sf, good_cut):
+            break  # a good, (nearly) complete candidate: the next clusters are worse
     return c_count[0]
 
 
@@ -1207,9 +1284,9 @@ def _workspace(n_fwd, n_sf, n_x, max_nodes_q, max_entries, max_bins, n_cand):
 @nb.njit(cache=True)
 def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hsig, opt, iopt, cuts,
                    good_cut, tgrid, max_entries, max_bins, out):
-    (f_layer, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
+    (f_layer, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
      x_station_bit, x_station_need, n_ut) = geo
-    ut_prune, sf_prune, final_cut = cuts
+    ut_prune, sf_prune, final_cut, noutcut, good_cut_ = cuts
     out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf = out
     ut_cut = good_cut[1]
     good_cut = good_cut[0]
@@ -1251,6 +1328,10 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
     u_chi = np.zeros(n_utc_max)
     u_n = np.zeros(n_utc_max, dtype=np.int64)
     u_leaf = np.zeros(n_utc_max, dtype=np.int64)
+    u_pc = np.zeros((n_utc_max, 12))
+    u_s0 = np.zeros((n_utc_max, 5))
+    u_ds0 = np.zeros((n_utc_max, 5))
+    ut_hits = np.full(n_fwd, -1, dtype=np.int64)
     for t in range(t_ev.shape[0]):
         e = t_ev[t]
         a = t_layer[t]
@@ -1271,7 +1352,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
         # ---- the VELO prior carried through the UT without hits, at the noise of 1/p_min and
         # without noise: the state at the last UT layer given q/p and its covariance
         st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, 0.0, ref_s, ref_F,
-                        ref_Q, work)
+                        ref_Q, work, opt[_O_MODEL])
         if st == TRANSPORT_FAILED:
             out_status[t] = STATUS_INVALID
             continue
@@ -1280,7 +1361,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
         for i in range(5):
             x0[i] = 0.0
         _velo_prior(opt, 0.0, opt[_O_WEAK_QPRIOR], P0)
-        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
                 f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
                 ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
         for i in range(5):
@@ -1288,9 +1369,9 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             ds0[i] = cP[i, 4] / cP[4, 4]
         _conditional(cP, pc, 0)
         _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q,
-                   work)
+                   work, opt[_O_MODEL])
         _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
-        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
                 f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
                 ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
         _conditional(cP, pc, 6)
@@ -1301,9 +1382,9 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
         _velo_prior(opt, qmax, opt[_O_UT_QPRIOR], P0)
         nb_ut, _, _ = _search(
-            0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-            opt[_O_UT_NSIG], iopt[_I_UT_FIRST], iopt[_I_BRANCH], n_ut - iopt[_I_UT_MIN],
+            opt[_O_UT_NSIG], iopt[_I_UT_FIRST], iopt[_I_UT_BRANCH], n_ut - iopt[_I_UT_MIN],
             iopt[_I_UT_MIN], True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top_ut, 1e6)
         n_leaves = top_ut[5][0]
         q0_ref = ref_s[n_ut - 1, 4]
@@ -1317,10 +1398,10 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             v_c = top_ut[4][c]
             chi_c = 1e300
             n_c = 0
-            for iteration in range(2):
+            for iteration in range(iopt[_I_UT_REFITS]):
                 q_noise = min(math.sqrt(q_c * q_c + v_c), qmax)
                 st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, q_c, q_noise, ref_s,
-                                ref_F, ref_Q, work)
+                                ref_F, ref_Q, work, opt[_O_MODEL])
                 if st == TRANSPORT_FAILED:
                     n_c = 0
                     break
@@ -1332,7 +1413,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
                 x0[4] = -q_c
                 _velo_prior(opt, q_noise, opt[_O_WEAK_QPRIOR], P0)
                 _, n_c, chi_c = _search(
-                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
                     f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
                     opt[_O_UT_NSIG], 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx,
                     cP, top_none, 1e6)
@@ -1343,13 +1424,36 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             if n_c < iopt[_I_UT_MIN] or chi_c > ut_cut[min(n_c, ut_cut.shape[0] - 1)]:
                 continue
             w_ = opt[_O_HOUGH_NSIG] * math.sqrt(v_c)
-            r_lo[n_utc] = max(q_c - w_, -qmax)
-            r_hi[n_utc] = min(q_c + w_, qmax)
-            u_q[n_utc] = q_c
-            u_var[n_utc] = v_c
-            u_chi[n_utc] = chi_c
-            u_n[n_utc] = n_c
-            u_leaf[n_utc] = c
+            # insert by (hits, χ²)
+            pos = n_utc
+            while pos > 0 and (n_c > u_n[pos - 1] or (n_c == u_n[pos - 1] and chi_c < u_chi[pos - 1])):
+                pos -= 1
+            for k in range(n_utc, pos, -1):
+                r_lo[k] = r_lo[k - 1]
+                r_hi[k] = r_hi[k - 1]
+                u_q[k] = u_q[k - 1]
+                u_var[k] = u_var[k - 1]
+                u_chi[k] = u_chi[k - 1]
+                u_n[k] = u_n[k - 1]
+                u_leaf[k] = u_leaf[k - 1]
+                for i in range(12):
+                    u_pc[k, i] = u_pc[k - 1, i]
+                for i in range(5):
+                    u_s0[k, i] = u_s0[k - 1, i]
+                    u_ds0[k, i] = u_ds0[k - 1, i]
+            r_lo[pos] = max(q_c - w_, -qmax)
+            r_hi[pos] = min(q_c + w_, qmax)
+            u_q[pos] = q_c
+            u_var[pos] = v_c
+            u_chi[pos] = chi_c
+            u_n[pos] = n_c
+            u_leaf[pos] = c
+            _conditional(cP, u_pc[pos], 0)
+            for i in range(6, 12):
+                u_pc[pos, i] = 0.0
+            for i in range(5):
+                u_s0[pos, i] = ref_s[n_ut - 1, i] + cx[i]
+                u_ds0[pos, i] = cP[i, 4] / cP[4, 4]
             n_utc += 1
         if n_utc > 0:
             for j in range(n_ut):
@@ -1357,49 +1461,45 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
         # ---- 2–5. SciFi over the union of the UT ranges, then (if needed) the full range
         best_key[0] = 1e300
         final_ok = False
-        full_done = False
-        u_lo = 0.0
-        u_hi = 0.0
-        for attempt in range(3):
-            if attempt == 0:
-                if n_utc == 0:
-                    q_lo = -qmax
-                    q_hi = qmax
-                    full_done = True
-                else:
-                    q_lo = r_lo[0]
-                    q_hi = r_hi[0]
-                    for c in range(1, n_utc):
-                        q_lo = min(q_lo, r_lo[c])
-                        q_hi = max(q_hi, r_hi[c])
-                    full_done = q_lo <= -qmax and q_hi >= qmax
-                    u_lo = q_lo
-                    u_hi = q_hi
+        # each UT candidate (its fitted state, its q/p range, its hits in the KF), best first;
+        # then the VELO prior alone over the whole range
+        done = False
+        for attempt in range(n_utc + 1):
+            if done:
+                break
+            if attempt < n_utc:
+                q_lo = r_lo[attempt]
+                q_hi = r_hi[attempt]
+                for j in range(n_fwd):
+                    ut_hits[j] = top_ut[0][u_leaf[attempt], j] if j < n_ut else -1
+                c_s0 = u_s0[attempt]
+                c_ds0 = u_ds0[attempt]
+                c_pc = u_pc[attempt]
             else:
-                # the rest of the range (overlapping the UT range by a few tolerances)
-                if final_ok or full_done or iopt[_I_FALLBACK] == 0:
+                if final_ok or (attempt > 0 and iopt[_I_FALLBACK] == 0):
                     break
-                if attempt == 1:
-                    q_lo = -qmax
-                    q_hi = _q_of_t(_t_of_q(u_lo, tgrid) + 4.0, tgrid)
-                else:
-                    q_lo = _q_of_t(_t_of_q(u_hi, tgrid) - 4.0, tgrid)
-                    q_hi = qmax
-                if q_hi <= q_lo:
-                    continue
+                q_lo = -qmax
+                q_hi = qmax
+                for j in range(n_fwd):
+                    ut_hits[j] = -1
+                c_s0 = s0
+                c_ds0 = ds0
+                c_pc = pc
             n_c = _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, tgrid,
-                                s0, ds0, pc, q_lo, q_hi, W, cand)
+                                c_s0, c_ds0, c_pc, q_lo, q_hi, ut_hits, W, cand)
             for c in range(n_c):
                 ok_c = _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, c_q[c], c_var[c],
                                  c_paths[c], ut_best, n_utc > 0, mode, fixed,
-                                 loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end, f_need_end,
+                                 loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end, f_need_end,
                                  ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune, final_cut,
-                                 ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar, out_chi2,
+                                 noutcut, sf_prune, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar,
+                                 out_chi2,
                                  out_ndf, out_status, out_nut, out_nsf, top_none, best_key)
                 final_ok = final_ok or ok_c
                 if final_ok and _pvalue_ok(out_chi2[t], out_ndf[t] + 1, good_cut) \
                         and out_nsf[t] >= n_fwd - n_ut - 1:
-                    break  # a good, (nearly) complete extension: no need to look further
+                    done = True  # a good, (nearly) complete extension: no need to look further
+                    break
         if not final_ok and n_utc > 0:
             # an upstream track: the best UT leaf, its q/p from the kink
             out_status[t] = STATUS_NO_SCIFI
@@ -1407,21 +1507,24 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             out_qvar[t] = u_var[0]
             out_chi2[t] = u_chi[0]
             out_ndf[t] = u_n[0] - 1
+            n_h = 0
             for j in range(n_ut):
                 out_hits[t, j] = ut_best[j]
-            out_nut[t] = u_n[0]
+                if ut_best[j] >= 0:
+                    n_h += 1
+            out_nut[t] = n_h
 
 
 @nb.njit(cache=True)
 def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_best, sf_path,
-              ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit,
+              ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit,
               f_group_end, f_need_end, ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune,
-              final_cut, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar, out_chi2, out_ndf,
-              out_status, out_nut, out_nsf, top_none, best_key):
+              final_cut, noutcut, sf_prune, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar,
+              out_chi2, out_ndf, out_status, out_nut, out_nsf, top_none, best_key):
     """UT confirmation with the SciFi q/p as prior, then the final fit (step 5); if the fit
     with the UT hits fails its χ² cut, once more without UT hits."""
     st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, abs(q_best), ref_s,
-                    ref_F, ref_Q, work)
+                    ref_F, ref_Q, work, opt[_O_MODEL])
     if st == TRANSPORT_FAILED:
         return False
     confirm_min = iopt[_I_CONFIRM_MIN]
@@ -1435,7 +1538,7 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
                 _velo_prior(opt, abs(q_best), 0.0, P0)
                 P0[4, 4] = var_best
                 nb_c, _, _ = _search(
-                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
                     f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
                     opt[_O_CONFIRM_NSIG], iopt[_I_BRANCH], iopt[_I_BRANCH], n_ut - confirm_min,
                     confirm_min, True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
@@ -1464,9 +1567,9 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
         x0[4] = -q_best
         _velo_prior(opt, abs(q_best), opt[_O_WEAK_QPRIOR], P0)
         _, n_fit, chi_f = _search(
-            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_bit, f_group_end,
+            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-            opt[_O_NSIG], 1, 1, 0, 0, False, 0, final_cut, iopt[_I_MAX_NODES], ws, path, bx, bP,
+            opt[_O_NSIG], 1, 1, 0, 0, False, 0, sf_prune, iopt[_I_MAX_NODES], ws, path, bx, bP,
             top_none, 1e6)
         if n_fit < 1:
             continue
@@ -1480,6 +1583,8 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
                     n_s += 1
         if n_s < iopt[_I_SF_MIN] or chi_f > final_cut[min(n_u + n_s, final_cut.shape[0] - 1)]:
             continue
+        if n_u == 0 and (n_s < iopt[_I_NOUT_MIN] or chi_f > noutcut[min(n_s, noutcut.shape[0] - 1)]):
+            continue  # without UT hits the VELO–SciFi match alone must be convincing
         key = chi_f - opt[_O_MISS] * (n_u + n_s)
         if key >= best_key[0]:
             return True
@@ -1512,6 +1617,9 @@ def _layout(geometry: Geometry):
     if np.any(geometry.layer_kind[np.concatenate([ut, sf])] != 1):
         raise InputError(f"geometry {geometry.name!r}: UT and SciFi layers must be strip layers")
     f_layer = np.concatenate([ut, sf]).astype(np.int64)
+    if np.any(np.diff(f_layer) != 1) or velo[-1] >= ut[0]:
+        raise InputError(f"geometry {geometry.name!r}: the forward extension needs the VELO, UT and SciFi "
+                         "layers in this order, each contiguous")
     n_fwd = f_layer.size
     stations = np.unique(geometry.layer_station[sf])
     if stations.size > 15:
@@ -1546,9 +1654,39 @@ def _layout(geometry: Geometry):
         f_cos=geometry.layer_cos[f_layer].astype(np.float64),
         f_sin=geometry.layer_sin[f_layer].astype(np.float64),
         f_sig=geometry.layer_sigma[f_layer].astype(np.float64),
+        f_acc=_acceptance(geometry, f_layer),
         f_bit=f_bit, f_group_end=f_group_end, f_need_end=f_need_end, sf_need=int(sf_need),
-        x_layers=x_layers.astype(np.int64), x_fwd=x_fwd.astype(np.int64), x_station_bit=x_station_bit, x_station_need=x_station_need,
+        x_layers=x_layers.astype(np.int64), x_fwd=x_fwd.astype(np.int64), x_station_bit=x_station_bit,
+        x_station_need=x_station_need,
     )
+
+
+def _acceptance(geometry: Geometry, f_layer: np.ndarray) -> np.ndarray:
+    """Active area of the forward layers: (half_x, half_y, hole radius, hole half_x, hole
+    half_y) per layer [mm] (DESIGN §3)."""
+    planes = geometry.planes
+    acc = np.zeros((f_layer.size, 5))
+    for j, lay in enumerate(f_layer):
+        i = int(np.flatnonzero(planes.layer == lay)[0])
+        acc[j] = (planes.half_x[i], planes.half_y[i], planes.hole_radius[i], planes.hole_half_x[i],
+                  planes.hole_half_y[i])
+    return acc
+
+
+def _check_extrapolator(ext, geometry: Geometry) -> None:
+    """The reference trajectories use one paper step per layer pair (`forward_steps`):
+    VELO→UT from any VELO layer, layer steps in the UT and the SciFi, the UT→SciFi table."""
+    v, u, t = (SUBDETECTORS.index(n) for n in ("velo", "ut", "scifi"))
+    ok = (ext.layer_z.size == geometry.layer_z.size
+          and ext.between_type[v] == STEP_VELO_TO_UT and ext.within_type[u] == STEP_UT
+          and ext.between_type[u] == STEP_UT_TO_SCIFI and ext.within_type[t] == STEP_SCIFI)
+    if not ok:
+        raise InputError(f"geometry {geometry.name!r}: the forward extension needs the step types "
+                         "velo_to_ut, ut, ut_to_scifi and scifi (DESIGN §9.2)")
+    meta, coef = ext.uts_meta, ext.uts_coef
+    if (meta.size < META_SIZE or meta[META_NX] < 3 or meta[META_NY] < 3 or meta[META_P_MIN] <= 0
+            or coef.ndim != 4 or coef.shape[1] != int(meta[META_NX]) or coef.shape[2] != int(meta[META_NY])):
+        raise InputError("the parameter set has no valid UT→SciFi table (eqs. 21–23): run `pkf tune`")
 
 
 def _chi2_table(pvalue: float, n: int, offset: int) -> np.ndarray:
@@ -1565,6 +1703,7 @@ def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_
     """Arrays for the kernel: hits of the forward layers sorted by (event, layer, u) with
     their (event, layer) offsets, tracks moved to their VELO layer, option vectors."""
     lay = _layout(geometry)
+    _check_extrapolator(ext, geometry)
     track_event = np.ascontiguousarray(track_event, dtype=np.int64)
     velo_state = np.ascontiguousarray(velo_state, dtype=np.float64).reshape(-1, 4)
     z_state = np.ascontiguousarray(z_state, dtype=np.float64)
@@ -1587,7 +1726,10 @@ def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_
     use = np.flatnonzero((hf >= 0) & np.isfinite(hit_u) & (hit_sigma > 0))
     events = np.unique(track_event)
     ev_index = np.searchsorted(events, hit_event[use])
-    known = (ev_index < events.size) & (events[np.minimum(ev_index, events.size - 1)] == hit_event[use])
+    if events.size:
+        known = (ev_index < events.size) & (events[np.minimum(ev_index, events.size - 1)] == hit_event[use])
+    else:
+        known = np.zeros(use.size, dtype=bool)
     use = use[known]
     ev_index = ev_index[known]
     order = np.lexsort((hit_u[use], hf[use], ev_index))
@@ -1613,8 +1755,7 @@ def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_
     bad = ~np.isfinite(z_state) | (z_state < vz[0] - 50.0) | (z_state > vz[-1] + 50.0)
     t_layer[bad] = -1
     # options, tables, buffers
-    meta = ext.uts_meta
-    p_table = float(meta[2]) if meta.size > 2 and meta[2] > 0 else 3000.0
+    p_table = float(ext.uts_meta[META_P_MIN])
     fopt, iopt = options.vectors(p_table)
     n_meas = n_fwd + 2
     ut_prune = _chi2_table(1e-6, n_meas, 1) + 10.0
@@ -1628,11 +1769,13 @@ def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_
              if options.hough_tol_rel > 0 else qmax / options.hough_tol_abs)
     max_bins = int(2.0 * t_max) + 4
     poly, tref = new_table_buffers(ext)
-    geo = (f_layer, lay["f_cos"], lay["f_sin"], lay["f_sig"], lay["f_bit"], lay["f_group_end"],
+    geo = (f_layer, lay["f_cos"], lay["f_sin"], lay["f_sig"], lay["f_acc"], lay["f_bit"], lay["f_group_end"],
            lay["f_need_end"], lay["sf_need"], lay["x_layers"], lay["x_fwd"], lay["x_station_bit"],
            lay["x_station_need"], lay["n_ut"])
     return dict(n=n, n_events=n_ev, geo=geo, t_ev=t_ev, state=state, t_layer=t_layer, lay_off=lay_off,
-                hu=hu, hsig=hsig, rows=rows, fopt=fopt, iopt=iopt, cuts=(ut_prune, sf_prune, final_cut),
+                hu=hu, hsig=hsig, rows=rows, fopt=fopt, iopt=iopt,
+                cuts=(ut_prune, sf_prune, final_cut, _chi2_table(options.no_ut_pvalue, n_meas, 1),
+                      _chi2_table(options.good_pvalue, n_meas, 1)),
                 good_cut=_chi2_table(options.good_pvalue, n_meas, 1),
                 ut_cut=_chi2_table(options.ut_pvalue, n_meas, 1),
                 tgrid=_hough_grid(options.hough_tol_abs, options.hough_tol_rel, 1.0 / options.p_min),
@@ -1674,8 +1817,7 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
         _extend_kernel(ext, prep["poly"], prep["tref"], prep["geo"], prep["t_ev"], prep["state"],
                        prep["t_layer"], prep["lay_off"], prep["hu"], prep["hsig"], prep["fopt"],
                        prep["iopt"], prep["cuts"], (prep["good_cut"], prep["ut_cut"]), prep["tgrid"],
-                       prep["max_entries"],
-                       prep["max_bins"],
+                       prep["max_entries"], prep["max_bins"],
                        (out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf))
     rows = prep["rows"]
     p_table = prep["p_table"]

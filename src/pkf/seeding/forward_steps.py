@@ -219,12 +219,19 @@ def table_step(meta, poly, ref, eloss, s_in, s_out, jac, quadratic):
 
 
 @nb.njit(cache=True, inline="always")
-def _noise_at(noise_par, slot, s, q_noise, dz, s_tmp, out):
-    """Paper eq. 11 for the step leaving `slot`, at the slopes of s and |q/p| = q_noise."""
+def _noise_at(noise_par, slot, s, q_noise, dz, s_tmp, jac, out):
+    """Paper eq. 11 for the step leaving `slot`, at the slopes of s and |q/p| = q_noise,
+    plus the energy-loss straggling before the step (q/p noise (p̃5·q²)² through the
+    step's Jacobian), as `pkf.fit.parametrized.parametrized_step` adds it."""
     for i in range(4):
         s_tmp[i] = s[i]
     s_tmp[4] = q_noise
     parametrized_noise(noise_par[slot], s_tmp, dz, out)
+    if noise_par.shape[1] > 5 and noise_par[slot, 5] > 0.0:
+        var_qop = (noise_par[slot, 5] * q_noise * q_noise) ** 2
+        for i in range(5):
+            for k in range(5):
+                out[i, k] += var_qop * jac[i, 4] * jac[k, 4]
 
 
 @nb.njit(cache=True)
@@ -249,23 +256,23 @@ def reference_trajectory(ext, poly, ref, quadratic, a, f_layer, n_ut, j_end, s_s
     slot = ext.sub_last[ext.layer_sub[a]]
     if not velo_to_ut_step(extrap[slot], s_start, layer_z[a], z1, ref_s[0], ref_F[0]):
         return TRANSPORT_FAILED
-    _noise_at(noise_par, slot, s_start, q_noise, z1 - layer_z[a], s_tmp, ref_Q[0])
+    _noise_at(noise_par, slot, s_start, q_noise, z1 - layer_z[a], s_tmp, ref_F[0], ref_Q[0])
     for j in range(1, min(n_ut, j_end)):
         l0 = f_layer[j - 1]
         dz = layer_z[l0 + 1] - layer_z[l0]
         layer_step(extrap[l0], ref_s[j - 1], layer_z[l0], layer_z[l0 + 1], ref_s[j], ref_F[j])
-        _noise_at(noise_par, l0, ref_s[j - 1], q_noise, dz, s_tmp, ref_Q[j])
+        _noise_at(noise_par, l0, ref_s[j - 1], q_noise, dz, s_tmp, ref_F[j], ref_Q[j])
     if j_end > n_ut:
         l0 = f_layer[n_ut - 1]
         status = table_step(ext.uts_meta, poly, ref, extrap[l0, 0], ref_s[n_ut - 1], ref_s[n_ut],
                             ref_F[n_ut], quadratic)
         _noise_at(noise_par, l0, ref_s[n_ut - 1], q_noise, layer_z[l0 + 1] - layer_z[l0], s_tmp,
-                  ref_Q[n_ut])
+                  ref_F[n_ut], ref_Q[n_ut])
         for j in range(n_ut + 1, j_end):
             l0 = f_layer[j - 1]
             dz = layer_z[l0 + 1] - layer_z[l0]
             layer_step(extrap[l0], ref_s[j - 1], layer_z[l0], layer_z[l0 + 1], ref_s[j], ref_F[j])
-            _noise_at(noise_par, l0, ref_s[j - 1], q_noise, dz, s_tmp, ref_Q[j])
+            _noise_at(noise_par, l0, ref_s[j - 1], q_noise, dz, s_tmp, ref_F[j], ref_Q[j])
     for i in range(5):
         if not np.isfinite(ref_s[j_end - 1, i]):
             return TRANSPORT_FAILED
@@ -301,8 +308,7 @@ def scan_states(ext, poly, ref, quadratic, l_from, sf_layers, s0, ds0, q_nodes, 
         s[4] = q
         d[4] = 1.0
         st = table_step(ext.uts_meta, poly, ref, eloss, s, s_next, jac, quadratic)
-        if st > status:
-            status = st
+        status = max(status, st)
         for li in range(n_layers):
             if li > 0:
                 l0 = sf_layers[li - 1]

@@ -1,0 +1,311 @@
+"""Forward extension of VELO tracks into the UT and the SciFi (pkf.seeding.forward, DESIGN §7.4).
+
+Physics performance on simulated lhcb-like minimum bias at ν = 7.6 with VELO tracks from
+MC truth (so that it does not depend on the VELO search): efficiency of long-reconstructible
+particles per momentum bin (≥ 70 % of the added UT + SciFi hits from the particle), also
+without UT hits, ghost rate and the q/p resolution; the structure of the output; input
+handling; and the parametrized transport of `pkf.seeding.forward_steps` against the
+extrapolator of the Kalman fit.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pkf.errors import InputError
+from pkf.fit.parametrized import parametrized_step
+from pkf.geometry import load_geometry
+from pkf.geometry.detector import SUBDETECTORS
+from pkf.params.parameter_set import shipped_parameters
+from pkf.seeding.forward import (
+    STATUS_INVALID,
+    STATUS_NO_SCIFI,
+    STATUS_NO_UT,
+    STATUS_NOT_FOUND,
+    STATUS_OK,
+    ForwardOptions,
+    extend_velo_tracks,
+)
+from pkf.seeding.forward_steps import (
+    TRANSPORT_BELOW_P_MIN,
+    TRANSPORT_OK,
+    new_table_buffers,
+    reference_trajectory,
+    table_localize,
+    table_step,
+)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from forward_helpers import (  # noqa: E402
+    KEY_SCALE,
+    extension_metrics,
+    simulate,
+    truth_velo_tracks,
+)
+
+log = logging.getLogger(__name__)
+
+EVENTS = 20
+PILEUP = 7.6
+SEED = 11
+
+
+@pytest.fixture(scope="module")
+def geometry():
+    return load_geometry("lhcb-like")
+
+
+@pytest.fixture(scope="module")
+def ext(geometry):
+    return shipped_parameters(geometry).extrapolator(geometry)
+
+
+@pytest.fixture(scope="module")
+def sample(geometry, ext):
+    h, p, m = simulate(geometry, EVENTS, PILEUP, SEED)
+    velo = truth_velo_tracks(geometry, h, m)
+    result = extend_velo_tracks(velo["event"], velo["state"], velo["z"], h["event_id"], h["layer"],
+                                h["u"], h["sigma_u"], geometry, ext)
+    metrics = extension_metrics(geometry, result, velo, h, p, m)
+    log.info("forward extension, %d lhcb-like minbias events at nu=%.1f: %s", EVENTS, PILEUP,
+             {k: v for k, v in metrics.items() if k != "masks"})
+    return {"h": h, "p": p, "m": m, "velo": velo, "result": result, "metrics": metrics}
+
+
+# ------------------------------------------------------------------------------------
+# physics performance
+# ------------------------------------------------------------------------------------
+
+def test_efficiency_and_ghost_rate(sample):
+    """Long-reconstructible particles (DESIGN §10) are extended with ≥ 70 % correct hits;
+    measured on other seeds: ≈ 95.5 % above 5 GeV, ≈ 88 % at 2–5 GeV, ≈ 3 % ghosts."""
+    met = sample["metrics"]
+    assert met["n_p_gt_5GeV"] > 2500 and met["n_p_2_5GeV"] > 700
+    assert met["efficiency_p_gt_5GeV"] >= 0.93, met
+    assert met["efficiency_p_2_5GeV"] >= 0.84, met
+    assert met["ghost_rate"] <= 0.045, met
+
+
+def test_tracks_without_ut_hits_are_found(sample):
+    """Particles crossing the UT beam hole or gaps (no UT hit) are found by the q/p scan
+    with the VELO state alone (≈ 85 % above 5 GeV)."""
+    met = sample["metrics"]
+    assert met["n_no_ut_p_gt_5GeV"] > 100
+    assert met["efficiency_no_ut_p_gt_5GeV"] >= 0.72, met
+    # and they are reported without UT hits, or with few
+    masks = sample["metrics"]["masks"]
+    res = sample["result"]
+    sel = masks["correct"] & (masks["n_ut_true"] == 0)
+    assert np.mean(res.status[sel] == STATUS_NO_UT) > 0.6
+
+
+def test_qop_resolution(sample):
+    """q/p of correct extensions: core resolution ≲ 0.5 % (the VELO–SciFi kink), unbiased,
+    and its variance describes the core (pull width ≈ 1–1.4)."""
+    met = sample["metrics"]
+    for name in ("2_5GeV", "5_20GeV", "gt_20GeV"):
+        assert met[f"qop_resolution_core_{name}"] < 0.006, (name, met)
+        assert abs(met[f"qop_bias_{name}"]) < 0.001, (name, met)
+        assert 0.8 < met[f"qop_pull_core_{name}"] < 1.6, (name, met)
+
+
+def test_output_structure(sample, geometry):
+    res = sample["result"]
+    h = sample["h"]
+    velo = sample["velo"]
+    n = velo["key"].size
+    assert res.n_tracks == n and res.offsets.shape == (n + 1,) and res.offsets[0] == 0
+    assert np.all(np.diff(res.offsets) >= 0) and res.offsets[-1] == res.hit_rows.size
+    assert np.array_equal(res.n_hits, res.n_ut + res.n_scifi)
+    t = res.track_of_hit
+    rows = res.hit_rows
+    # hits of the track's event, on UT/SciFi layers, at most one per layer, sorted by z
+    assert np.array_equal(h["event_id"][rows], velo["event"][t])
+    sub = geometry.layer_subdetector[h["layer"][rows]]
+    assert np.all((sub == SUBDETECTORS.index("ut")) | (sub == SUBDETECTORS.index("scifi")))
+    n_ut = np.bincount(t, weights=sub == SUBDETECTORS.index("ut"), minlength=n)
+    assert np.array_equal(n_ut, res.n_ut)
+    layer_key = t * 1000 + h["layer"][rows]
+    assert np.unique(layer_key).size == layer_key.size
+    assert np.all(np.diff(layer_key) > 0)  # per track, increasing layer (z) order
+    # statuses
+    ok = res.status == STATUS_OK
+    assert np.all(res.n_ut[ok] > 0) and np.all(res.n_scifi[ok] >= ForwardOptions().scifi_min_hits)
+    no_ut = res.status == STATUS_NO_UT
+    assert np.all(res.n_ut[no_ut] == 0) and np.all(res.n_scifi[no_ut] >= ForwardOptions().no_ut_min_hits)
+    up = res.status == STATUS_NO_SCIFI
+    assert np.all(res.n_scifi[up] == 0) and np.all(res.n_ut[up] >= ForwardOptions().ut_min_hits)
+    none = res.status == STATUS_NOT_FOUND
+    assert np.all(res.n_hits[none] == 0) and np.all(np.isnan(res.qop[none]))
+    found = res.found
+    assert np.all(np.isfinite(res.qop[found])) and np.all(res.qop_var[found] > 0)
+    assert np.all(res.ndf[found] == res.n_hits[found] - 1)
+    assert np.array_equal(res.below_table_p_min, np.abs(res.qop) > 1.0 / 3000.0)
+    # most VELO tracks of long particles are extended; few of the others (ghost sources)
+    masks = sample["metrics"]["masks"]
+    assert found[masks["is_long"]].mean() > 0.9
+    assert found[~masks["is_long"]].mean() < 0.25
+
+
+def test_hit_order_and_batching_do_not_matter(sample, geometry, ext):
+    """Hits in any order and tracks in any subset give the same extensions (tracks are
+    independent; the hit rows refer to the caller's arrays)."""
+    h, velo, res = sample["h"], sample["velo"], sample["result"]
+    events = np.unique(velo["event"])[:4]
+    in_events = np.isin(h["event_id"], events)
+    rng = np.random.default_rng(5)
+    perm = rng.permutation(np.flatnonzero(in_events))
+    tracks = np.flatnonzero(np.isin(velo["event"], events))[::2]
+    sub = extend_velo_tracks(velo["event"][tracks], velo["state"][tracks], velo["z"][tracks],
+                             h["event_id"][perm], h["layer"][perm], h["u"][perm], h["sigma_u"][perm],
+                             geometry, ext)
+    assert np.array_equal(sub.status, res.status[tracks])
+    np.testing.assert_allclose(sub.qop, res.qop[tracks], rtol=1e-9, atol=0.0, equal_nan=True)
+    for i, t in enumerate(tracks):
+        mine = np.sort(perm[sub.hit_rows[sub.offsets[i]:sub.offsets[i + 1]]])
+        full = np.sort(res.hit_rows[res.offsets[t]:res.offsets[t + 1]])
+        assert np.array_equal(mine, full)
+
+
+# ------------------------------------------------------------------------------------
+# input handling
+# ------------------------------------------------------------------------------------
+
+def test_invalid_and_empty_inputs(sample, geometry, ext):
+    h, velo = sample["h"], sample["velo"]
+    hits = (h["event_id"], h["layer"], h["u"], h["sigma_u"])
+    state = velo["state"][:3].copy()
+    z = velo["z"][:3].copy()
+    state[0, 2] = np.nan  # NaN slope
+    z[1] = 5000.0  # not in the VELO
+    res = extend_velo_tracks(velo["event"][:3], state, z, *hits, geometry, ext)
+    assert res.status[0] == STATUS_INVALID and res.status[1] == STATUS_INVALID
+    assert res.status[2] != STATUS_INVALID
+    # no tracks; a track of an event without hits
+    empty = extend_velo_tracks(np.zeros(0, dtype=np.int64), np.zeros((0, 4)), np.zeros(0), *hits,
+                               geometry, ext)
+    assert empty.n_tracks == 0 and empty.hit_rows.size == 0
+    lonely = extend_velo_tracks(np.array([10**9]), velo["state"][:1], velo["z"][:1], *hits, geometry, ext)
+    assert lonely.status[0] == STATUS_NOT_FOUND and lonely.hit_rows.size == 0
+    with pytest.raises(ValueError):
+        extend_velo_tracks(velo["event"][:3], velo["state"][:2], velo["z"][:3], *hits, geometry, ext)
+    with pytest.raises(ValueError):
+        ForwardOptions(p_min=-1.0)
+    telescope = load_geometry("telescope")
+    with pytest.raises(InputError):
+        extend_velo_tracks(velo["event"][:1], velo["state"][:1], velo["z"][:1], *hits, telescope,
+                           shipped_parameters(telescope).extrapolator(telescope))
+
+
+# ------------------------------------------------------------------------------------
+# the parametrized transport of the search
+# ------------------------------------------------------------------------------------
+
+def _chain(ext, s, z_from, z_to):
+    out, jac, noise, work = np.zeros(5), np.zeros((5, 5)), np.zeros((5, 5)), np.zeros((6, 5, 5))
+    status = parametrized_step(ext, s, z_from, z_to, out, jac, noise, work)
+    return status, out, jac, noise
+
+
+def test_reference_trajectory_equals_parametrized_step(geometry, ext):
+    """Above the table's p_min the reference trajectory is the Kalman fit's extrapolation:
+    same states, Jacobians and noise (the table localised at the last UT state)."""
+    layer_z = geometry.layer_z
+    sub = geometry.layer_subdetector
+    velo = np.flatnonzero(sub == 0)
+    f_layer = np.flatnonzero(sub > 0).astype(np.int64)
+    n_ut = int(np.sum(sub == 1))
+    poly, ref = new_table_buffers(ext)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a = int(rng.choice(velo[-10:]))
+        q = rng.uniform(-1.0, 1.0) / 3200.0
+        s = np.array([rng.normal(0, 5), rng.normal(0, 5), rng.normal(0, 0.08), rng.normal(0, 0.06), q])
+        _, s_ut, _, _ = _chain(ext, s, layer_z[a], layer_z[f_layer[n_ut - 1]])
+        table_localize(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
+        ref_s = np.zeros((f_layer.size, 5))
+        ref_f = np.zeros((f_layer.size, 5, 5))
+        ref_q = np.zeros((f_layer.size, 5, 5))
+        status = reference_trajectory(ext, poly, ref, True, a, f_layer, n_ut, f_layer.size, s, abs(q),
+                                      ref_s, ref_f, ref_q, np.zeros(5))
+        assert status == TRANSPORT_OK
+        prev_z, prev_s = layer_z[a], s
+        for j, lay in enumerate(f_layer):
+            st, out, jac, noise = _chain(ext, prev_s, prev_z, layer_z[lay])
+            assert st == 0
+            np.testing.assert_allclose(ref_s[j], out, rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(ref_f[j], jac, rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(ref_q[j], noise, rtol=1e-10, atol=1e-20)
+            prev_z, prev_s = layer_z[lay], out
+
+
+def test_table_continuation_below_p_min(ext, sample, geometry):
+    """Below 3 GeV: the quadratic continuation is continuous at |w| = 1, its Jacobian is
+    the derivative of what it returns, and it predicts the first SciFi layer of 2–2.5 GeV
+    particles better than the linear continuation of the table module."""
+    poly, ref = new_table_buffers(ext)
+    s = np.array([150.0, -80.0, 0.07, -0.03, 0.0])
+    table_localize(ext.uts_meta, ext.uts_coef, s[0], s[1], poly, ref)
+    eloss = ext.extrapolation[int(np.flatnonzero(geometry.layer_subdetector == 1)[-1]), 0]
+    out, jac = np.zeros(5), np.zeros((5, 5))
+
+    def f(state):
+        o, j = np.zeros(5), np.zeros((5, 5))
+        st = table_step(ext.uts_meta, poly, ref, eloss, state, o, j, True)
+        return st, o, j
+
+    # continuity at the edge (w = ±1 at the energy-loss corrected q/p)
+    for sign in (1.0, -1.0):
+        q_edge = sign / (3000.0 + eloss)
+        lo = s.copy()
+        lo[4] = q_edge * (1 - 1e-9)
+        hi = s.copy()
+        hi[4] = q_edge * (1 + 1e-9)
+        st_lo, o_lo, _ = f(lo)
+        st_hi, o_hi, _ = f(hi)
+        assert st_lo == TRANSPORT_OK and st_hi == TRANSPORT_BELOW_P_MIN
+        np.testing.assert_allclose(o_lo, o_hi, atol=1e-5)
+    # Jacobian of the continuation = finite differences
+    s2 = s.copy()
+    s2[4] = 1.0 / 1800.0
+    st, out, jac = f(s2)
+    assert st == TRANSPORT_BELOW_P_MIN
+    eps = np.array([1e-3, 1e-3, 1e-6, 1e-6, 1e-9])
+    for k in range(5):
+        up, dn = s2.copy(), s2.copy()
+        up[k] += eps[k]
+        dn[k] -= eps[k]
+        num = (f(up)[1] - f(dn)[1]) / (2 * eps[k])
+        np.testing.assert_allclose(jac[:4, k], num[:4], rtol=1e-5, atol=1e-6 * max(1.0, np.abs(num).max()))
+    # against MC truth: x at the first SciFi layer of 2–2.5 GeV pions (true q/p)
+    h, p, m, velo = sample["h"], sample["p"], sample["m"], sample["velo"]
+    p_key = p["event_id"] * KEY_SCALE + p["particle_id"]
+    idx = np.searchsorted(p_key, velo["key"])
+    mom = np.sqrt(p["px"] ** 2 + p["py"] ** 2 + p["pz"] ** 2)[idx]
+    pion = np.abs(p["pdg"][idx]) == 211
+    first_sf = int(np.flatnonzero(geometry.layer_subdetector == 2)[0])
+    last_ut = first_sf - 1
+    hit_key = np.where(m["particle_id"] > 0, h["event_id"] * KEY_SCALE + m["particle_id"], 0)
+    at_t1 = h["layer"] == first_sf
+    t1_key, t1_row = np.unique(hit_key[at_t1], return_index=True)
+    t1_x = m["x"][np.flatnonzero(at_t1)[t1_row]]
+    errors = {True: [], False: []}
+    for t in np.flatnonzero(pion & (mom > 2000) & (mom < 2500))[:60]:
+        k = np.searchsorted(t1_key, velo["key"][t])
+        if k >= t1_key.size or t1_key[k] != velo["key"][t]:
+            continue
+        state = np.array([*velo["state"][t], p["charge"][idx[t]] / mom[t]])
+        a = int(np.argmin(np.abs(geometry.layer_z - velo["z"][t])))
+        _, s_ut, _, _ = _chain(ext, state, geometry.layer_z[a], geometry.layer_z[last_ut])
+        table_localize(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
+        for quad in (True, False):
+            o, j = np.zeros(5), np.zeros((5, 5))
+            table_step(ext.uts_meta, poly, ref, eloss, s_ut, o, j, quad)
+            errors[quad].append(abs(o[0] - t1_x[k]))
+    assert len(errors[True]) > 20
+    assert np.median(errors[True]) < 0.8 * np.median(errors[False])
