@@ -17,7 +17,7 @@ import pkf
 from pkf.errors import InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
-from pkf.pipeline.reconstruct import PATTERNS
+from pkf.pipeline.reconstruct import EVENTS_PER_BATCH, PATTERNS
 from pkf.simulation.generators import GENERATORS
 from pkf.simulation.species import SPECIES_NAMES
 
@@ -69,18 +69,27 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
 @click.option("--iterations", default=1, show_default=True, type=int,
               help="Fit iterations; later ones linearise around the previous fit.")
-@click.option("--workers", default=1, show_default=True, type=int, help="Local worker processes.")
-@click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
-def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int, scheduler: str | None,
-                overwrite: bool, **options) -> None:
-    """Reconstruct DATASET into the run directory --out (chi2, states, pulls, run.json)."""
+@click.option("--workers", default=None, type=int,
+              help="Local worker processes (default: all cores; 1 runs in this process).")
+@click.option("--scheduler", default=None,
+              help="Address of a Dask distributed scheduler (e.g. tcp://host:8786) to run the batches on; "
+                   "needs the dask extra and a filesystem shared with its workers.")
+@click.option("--events-per-batch", default=EVENTS_PER_BATCH, show_default=True, type=int,
+              help="Events per partition (the unit of work and of output files; bounds memory).")
+@click.option("--overwrite", is_flag=True,
+              help="Redo everything and replace an existing --out (default: resume an interrupted run).")
+def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int | None, scheduler: str | None,
+                events_per_batch: int, overwrite: bool, **options) -> None:
+    """Reconstruct DATASET into the run directory --out (chi2, states, pulls, run.json).
+
+    The run is built in a hidden .OUT.partial directory and moved into place at the end;
+    rerunning an interrupted command resumes it, skipping the finished partitions.
+    """
     from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
 
-    if workers != 1 or scheduler is not None:
-        raise NotBuiltYet("--workers/--scheduler: parallel and Dask execution are not built yet (issue #8)")
     config = ReconstructionConfig(fitters=fitters or ("parametrized",), **options)
-    run = run_reconstruction(dataset, out, config, overwrite=overwrite)
+    run = run_reconstruction(dataset, out, config, overwrite=overwrite, workers=workers, scheduler=scheduler,
+                             events_per_batch=events_per_batch, echo=lambda line: click.echo(line, err=True))
     for name, t in run["timing"]["fit"].items():
         click.echo(f"{name}: {run['counts']['tracks'][name]} tracks fitted, "
                    f"{t['tracks_per_s'] or 0:.0f} tracks/s, {t['ns_per_node'] or 0:.0f} ns/node")

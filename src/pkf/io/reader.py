@@ -218,35 +218,46 @@ def _check_magic(file: Path, shown: str) -> None:
         raise InputError(f"{shown}: truncated Parquet file (no footer; was it written completely?)")
 
 
-def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str]) -> pa.Table:
-    """Read one Parquet file and convert it to ``schema`` (columns, dtypes, integer ranges)."""
+def open_checked(file: Path, schema: pa.Schema, table_name: str) -> pq.ParquetFile:
+    """Open one Parquet file after checking magic bytes, column names and dtypes (not values).
+
+    The caller closes the returned file. Raises InputError (one line naming the file).
+    """
     shown = str(file)
     _check_magic(file, shown)
     try:
-        with pq.ParquetFile(file) as pf:
-            file_schema = pf.schema_arrow
-            names = file_schema.names
-            dupes = sorted({n for n in names if names.count(n) > 1})
-            if dupes:
-                raise InputError(f"{shown}: column {dupes[0]!r} appears more than once")
-            missing = [n for n in schema.names if n not in names]
-            if missing:
-                more = f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else ""
-                raise InputError(f"{shown}: column {missing[0]!r} is missing{more}")
-            extra = [n for n in names if n not in schema.names]
-            if extra:
-                more = f" (also: {', '.join(extra[1:])})" if len(extra) > 1 else ""
-                raise InputError(
-                    f"{shown}: column {extra[0]!r} is not part of the {table_name} schema{more}"
-                )
-            for fld in schema:
-                src = file_schema.field(fld.name).type
-                if not _castable(src, fld.type):
-                    raise InputError(f"{shown}: column {fld.name!r}: wrong dtype {src}, expected {fld.type}")
-            raw = pf.read(use_threads=True)
+        pf = pq.ParquetFile(file)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{shown}: corrupt or truncated Parquet file ({_one_line(exc)})") from None
+    try:
+        file_schema = pf.schema_arrow
+        names = file_schema.names
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise InputError(f"{shown}: column {dupes[0]!r} appears more than once")
+        missing = [n for n in schema.names if n not in names]
+        if missing:
+            more = f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else ""
+            raise InputError(f"{shown}: column {missing[0]!r} is missing{more}")
+        extra = [n for n in names if n not in schema.names]
+        if extra:
+            more = f" (also: {', '.join(extra[1:])})" if len(extra) > 1 else ""
+            raise InputError(f"{shown}: column {extra[0]!r} is not part of the {table_name} schema{more}")
+        for fld in schema:
+            src = file_schema.field(fld.name).type
+            if not _castable(src, fld.type):
+                raise InputError(f"{shown}: column {fld.name!r}: wrong dtype {src}, expected {fld.type}")
+    except BaseException:
+        pf.close()
+        raise
+    return pf
 
+
+def convert_to_schema(raw: pa.Table, schema: pa.Schema, source: Source, key: Sequence[str]) -> pa.Table:
+    """Convert a table read from a file to ``schema`` (integer widths checked value by value).
+
+    Raises InputError naming the file, column and first row whose value does not fit.
+    """
     columns = []
     for fld in schema:
         col = raw.column(fld.name)
@@ -258,7 +269,7 @@ def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str
                 row = _first_true((values < info.min) | (values > info.max))
                 if row is not None:
                     raise _row_error(
-                        shown, raw, row, fld.name, key, f"is {values[row]}, which does not fit in {fld.type}"
+                        source, raw, row, fld.name, key, f"is {values[row]}, which does not fit in {fld.type}"
                     )
                 col = col.cast(fld.type)
             elif pa.types.is_floating(fld.type):
@@ -267,6 +278,19 @@ def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str
                 col = col.cast(fld.type)
         columns.append(col)
     return pa.Table.from_arrays(columns, schema=schema)
+
+
+def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str]) -> pa.Table:
+    """Read one Parquet file and convert it to ``schema`` (columns, dtypes, integer ranges)."""
+    shown = str(file)
+    pf = open_checked(file, schema, table_name)
+    try:
+        raw = pf.read(columns=schema.names, use_threads=True)
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{shown}: corrupt or truncated Parquet file ({_one_line(exc)})") from None
+    finally:
+        pf.close()
+    return convert_to_schema(raw, schema, shown, key)
 
 
 def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> tuple[pa.Table, TableSource]:

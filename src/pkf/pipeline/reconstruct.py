@@ -1,58 +1,43 @@
 """The `pkf reconstruct` stage: pattern recognition, fits, MC matching, run tables (DESIGN §6–§10).
 
-Events are processed in chunks (bounded memory); within a chunk every step works on
-arrays of all its tracks. The run directory holds ``candidates``, ``chi2``, ``states``,
-``pulls`` (when MC is present) and ``run.json``, staged and renamed into place only
-when everything succeeded.
+The dataset is validated in bounded memory and cut into partitions of at most
+``events_per_batch`` events of one input file (:mod:`pkf.pipeline.plan`); each
+partition is reconstructed on its own (:mod:`pkf.pipeline.batch`) by an executor —
+this process, local worker processes, or a Dask scheduler (:mod:`pkf.pipeline.executor`)
+— and written as one Parquet file per run table: ``RUN/chi2/part-FFFF-BBBBB.parquet``
+and so on for ``candidates``, ``states`` and ``pulls`` (when MC is present).
+``run.json`` lists the partitions with the SHA-256 of every file. The run is built in
+``.RUN.partial/`` and renamed into place at the end; a rerun resumes it
+(:mod:`pkf.pipeline.resume`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 from tqdm import tqdm
 
 import pkf
 from pkf.errors import InputError
-from pkf.fit.beamline import straight_line_extrapolator
-from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import Fitter, get_fitter
-from pkf.params.parameter_set import load_parameters
-from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
-from pkf.geometry.detector import SUBDETECTORS, Geometry
-from pkf.io.atomic import atomic_write_json, check_output_dir, staged_output_dir
-from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES, pack_covariance, table_from_columns
-from pkf.io.writer import StreamingTableWriter
-from pkf.pipeline.inputs import (
-    STATE_NAMES,
-    _PARTICLE_KEY_BASE,
-    align_mc,
-    column,
-    content_hash,
-    load_dataset,
-    particle_key,
-    production_truth,
-)
-from pkf.pipeline.matching import (
-    match_tracks,
-    pattern_metrics,
-    reconstructible_particles,
-    velo_reconstructible_particles,
-)
-from pkf.pipeline.triplet_pattern import triplet_candidates
-from pkf.pipeline.truth_pattern import truth_candidates
+from pkf.io.atomic import atomic_write_json, check_output_dir
+from pkf.io.stream import file_sha256
+from pkf.pipeline.batch import metrics_from_counts
+from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
+from pkf.pipeline.plan import DatasetPlan, plan_dataset, with_keys
+from pkf.pipeline.resume import RunStaging, complete_run
 
-EVENTS_PER_CHUNK = 500
+#: Default events per partition: bounds each worker's memory (~8000 hits per event at ν = 7.6).
+EVENTS_PER_BATCH = 100
 PATTERNS = ("triplet", "truth")
 
 
 @dataclass(frozen=True)
 class ReconstructionConfig:
-    """Every option of `pkf reconstruct` (DESIGN §1.1)."""
+    """Every option of `pkf reconstruct` that decides its output (DESIGN §1.1)."""
 
     fitters: tuple[str, ...] = ("parametrized",)
     pattern: str = "triplet"
@@ -75,282 +60,154 @@ class ReconstructionConfig:
         return [get_fitter(name) for name in self.fitters]
 
 
-@dataclass
-class _Timing:
-    wall: dict = field(default_factory=dict)
-    cpu: dict = field(default_factory=dict)
+def _check_config_against(plan: DatasetPlan, config: ReconstructionConfig) -> None:
+    """Problems of the configuration for this dataset, before any work (DESIGN §13)."""
+    if config.pattern == "truth" and not plan.has_mc:
+        raise InputError(f"{plan.path}: --pattern truth needs mc_hits, and the dataset has none")
+    from pkf.params.parameter_set import load_parameters
 
-    def add(self, stage: str, wall: float, cpu: float) -> None:
-        self.wall[stage] = self.wall.get(stage, 0.0) + wall
-        self.cpu[stage] = self.cpu.get(stage, 0.0) + cpu
-
-
-class _Clock:
-    def __init__(self, timing: _Timing, stage: str):
-        self.timing, self.stage = timing, stage
-
-    def __enter__(self):
-        self.w, self.c = time.perf_counter(), time.process_time()
-        return self
-
-    def __exit__(self, *exc):
-        self.elapsed = time.perf_counter() - self.w
-        self.timing.add(self.stage, self.elapsed, time.process_time() - self.c)
+    if config.params is not None or config.pattern == "triplet" or "parametrized" in config.fitters:
+        load_parameters(plan.geometry, config.params)  # InputError for a file of another geometry
 
 
-def _warm_up(fitters_ext, batch: TrackBatch, seeds, covs, options, beamline_ext) -> None:
-    """Compile (or load from cache) every kernel on a few tracks before timing."""
-    n = min(batch.n_tracks, 3)
-    if n == 0:
-        return
-    end = batch.offsets[n]
-    small = TrackBatch(batch.offsets[: n + 1], batch.z[:end], batch.layer[:end], batch.hit_row[:end],
-                       batch.n_meas[:end], batch.hx[:end], batch.hy[:end], batch.m[:end], batch.sigma[:end])
-    for fitter, ext in fitters_ext:
-        fitter.fit(ext, small, options, seeds[:n], covs[:n], beamline_ext)
+def _tasks(plan: DatasetPlan, config, staging: Path) -> list[PartitionTask]:
+    import numba
+
+    light = {name: replace(scan, events=np.zeros(0, np.int64), starts=np.zeros(0, np.int64))
+             for name, scan in plan.tables.items()}
+    tasks = []
+    for p in plan.partitions:
+        tables = {"hits": (light["hits"], *p.hits_rows)}
+        for name in ("particles", "mc_hits"):
+            if name in plan.tables:
+                tables[name] = (light[name], *plan.tables[name].rows_of_events(p.first_event, p.last_event + 1))
+        tasks.append(PartitionTask(p.name, p.key, str(plan.path.resolve()), config, tables, str(staging),
+                                   str(numba.config.CACHE_DIR)))
+    return tasks
 
 
 def run_reconstruction(dataset_path: str | Path, out: str | Path, config: ReconstructionConfig,
-                       overwrite: bool = False, progress: bool | None = None) -> dict:
-    """Reconstruct the dataset at `dataset_path` into the run directory `out`; returns run.json."""
-    fitters = config.validate()
+                       overwrite: bool = False, progress: bool | None = None, workers: int | None = 1,
+                       scheduler: str | None = None, events_per_batch: int = EVENTS_PER_BATCH,
+                       echo=None) -> dict:
+    """Reconstruct the dataset at `dataset_path` into the run directory `out`; returns run.json.
+
+    workers: local worker processes (None: all cores; 1: this process).
+    scheduler: address of a Dask distributed scheduler (then ``workers`` is ignored).
+    events_per_batch: events per partition (memory per worker grows with it).
+    echo: called with a line of news (e.g. resumed partitions), if given.
+    """
+    wall0 = time.perf_counter()
+    config.validate()
     dataset_path = Path(dataset_path)
-    check_output_dir(out, overwrite)
+    workers = default_workers() if workers is None else workers
+    if workers < 1:
+        raise InputError(f"--workers: must be >= 1, not {workers}")
     if Path(out).resolve() == dataset_path.resolve():
         raise InputError(f"--out {out}: is the input dataset")
-    geometry, dataset = load_dataset(dataset_path)
-    if config.pattern == "truth" and dataset.mc_hits is None:
-        raise InputError(f"{dataset_path}: --pattern truth needs mc_hits, and the dataset has none")
-    field_map = geometry.reconstruction_field()
-    fit_options = FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
-                             iterations=config.iterations)
-    fitters_ext = [(f, f.make_extrapolator(geometry, config.params)) for f in fitters]
-    # the forward extension of the triplet pattern uses the parametrized extrapolations
-    pattern_ext = (load_parameters(geometry, config.params).extrapolator(geometry)
-                   if config.pattern == "triplet" else None)
-    beamline_ext = straight_line_extrapolator(geometry)
+    final = Path(out)
+    maybe_complete = not overwrite and final.is_dir() and (final / "run.json").is_file()
+    if not maybe_complete:
+        check_output_dir(out, overwrite)
+    plan = plan_dataset(dataset_path, events_per_batch)
+    _check_config_against(plan, config)
+    run_config = asdict(config) | {"events_per_batch": events_per_batch}
+    if config.params is not None and Path(config.params).is_file():
+        run_config["params_sha256"] = file_sha256(config.params)
+    plan = with_keys(plan, run_config)
+    keys = {p.name: p.key for p in plan.partitions}
+    if maybe_complete:
+        info = complete_run(final, keys)
+        if info is None:
+            raise InputError(f"{out}: output directory exists and is not empty (use --overwrite to replace it)")
+        if echo:
+            echo(f"{out} is complete: all {len(keys)} partitions are done and intact")
+        return info
 
-    hits = dataset.hits
-    event_id = column(hits, "event_id", np.int64)
-    has_mc = dataset.mc_hits is not None
-    if has_mc:
-        hit_particle, hit_truth = align_mc(dataset, event_id)
-        particle_momentum = production_truth(dataset)
-    timing = _Timing()
-    fit_stats = {f.name: {"wall_s": 0.0, "tracks": 0, "nodes": 0} for f in fitters}
-    counts = {"events": int(np.unique(event_id).size), "hits": int(hits.num_rows), "candidates": 0,
-              "tracks": {f.name: 0 for f in fitters}}
-    matched_all, long_all, reconstructible_all, velo_reconstructible_all = [], [], [], []
-    bounds = _chunk_bounds(event_id, EVENTS_PER_CHUNK)
-    warmed = False
-    with staged_output_dir(out, overwrite) as staging:
-        writers = {"candidates": StreamingTableWriter(staging / "candidates.parquet", CANDIDATES),
-                   "chi2": StreamingTableWriter(staging / "chi2.parquet", CHI2),
-                   "states": StreamingTableWriter(staging / "states.parquet", STATES)}
-        if has_mc:
-            writers["pulls"] = StreamingTableWriter(staging / "pulls.parquet", PULLS)
-        with tqdm(total=counts["events"], unit="event", desc="reconstruct",
-                  disable=None if progress is None else not progress) as bar:
-            for lo, hi in bounds:
-                chunk = hits.slice(lo, hi - lo)
-                ev = event_id[lo:hi]
-                layer = column(chunk, "layer", np.int64)
-                with _Clock(timing, "pattern"):
-                    if config.pattern == "truth":
-                        cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle[lo:hi])
-                    else:
-                        cand_event, cand_track, cand_row = triplet_candidates(
-                            geometry, pattern_ext, ev, layer, column(chunk, "u"), column(chunk, "v"),
-                            column(chunk, "z"), column(chunk, "sigma_u"), column(chunk, "sigma_v"))
-                    n_tracks, track_of_hit = _global_tracks(cand_event, cand_track)
-                    batch = TrackBatch.from_candidates(
-                        geometry, track_of_hit, cand_row, layer, column(chunk, "u"),
-                        column(chunk, "v"), column(chunk, "sigma_u"), column(chunk, "sigma_v"), n_tracks)
-                    seeds, seed_covs, _ = seed_batch(batch, field_map)
-                track_event, track_id = _track_keys(cand_event, cand_track, n_tracks)
-                hit_id = column(chunk, "hit_id", np.int64)
-                writers["candidates"].write(table_from_columns(CANDIDATES, {
-                    "event_id": cand_event, "track_id": cand_track, "hit_id": hit_id[cand_row]}))
-                counts["candidates"] += n_tracks
-                if has_mc:
-                    hit_key = particle_key(ev, hit_particle[lo:hi])
-                    mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
-                    mc_particle = np.where(mc_id >= 0, mc_id % _PARTICLE_KEY_BASE, -1)
-                    matched_all.append(mc_id)
-                    scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
-                                             == SUBDETECTORS.index("scifi"), minlength=n_tracks)
-                    long_all.append(scifi_hits > 0)
-                    reconstructible_all.append(reconstructible_particles(geometry, hit_key, layer))
-                    velo_reconstructible_all.append(velo_reconstructible_particles(geometry, hit_key, layer))
-                else:
-                    mc_particle = np.full(n_tracks, -1, dtype=np.int64)
-                    fraction = np.zeros(n_tracks)
-                    ghost = np.ones(n_tracks, dtype=bool)
-                if not warmed:
-                    _warm_up(fitters_ext, batch, seeds, seed_covs, fit_options, beamline_ext)
-                    warmed = True
-                chunk_tables = {"chi2": [], "states": [], "pulls": []}
-                for fitter, ext in fitters_ext:
-                    with _Clock(timing, f"fit.{fitter.name}") as clock:
-                        result = fitter.fit(ext, batch, fit_options, seeds, seed_covs, beamline_ext)
-                    stats = fit_stats[fitter.name]
-                    stats["wall_s"] += clock.elapsed
-                    stats["tracks"] += n_tracks
-                    stats["nodes"] += int(batch.z.size)
-                    counts["tracks"][fitter.name] += int(np.sum(result.status == STATUS_OK))
-                    chunk_tables["chi2"].append(_chi2_table(fitter, geometry, batch, result, track_event,
-                                                            track_id, mc_particle, fraction, ghost))
-                    chunk_tables["states"].append(_states_table(fitter, result, track_event, track_id))
-                    if has_mc:
-                        chunk_tables["pulls"].append(_pulls_table(
-                            fitter, batch, result, track_event, track_id, mc_particle,
-                            hit_truth[lo:hi], particle_momentum))
-                for name, tables in chunk_tables.items():
-                    if tables:
-                        writers[name].write(_sorted(pa.concat_tables(tables)))
-                bar.update(int(np.unique(ev).size))
-        for writer in writers.values():
-            writer.close()
-        run = {
-            "pkf_version": pkf.__version__,
-            "kind": "run",
-            "config": asdict(config) | {"dataset": str(dataset_path)},
-            "input": {"path": str(dataset_path.resolve()), "content_hash": content_hash(dataset),
-                      "geometry": geometry.name, "geometry_hash": geometry.content_hash},
-            "counts": counts,
-            "timing": _timing_json(timing, fit_stats),
-        }
-        if has_mc:
-            matched = np.concatenate(matched_all)
-            is_long = np.concatenate(long_all)
-            run["pattern"] = pattern_metrics(matched[is_long], np.concatenate(reconstructible_all))
-            run["pattern"]["definition"] = ("long tracks (with SciFi hits) against long-reconstructible "
-                                            "particles (DESIGN §10)")
-            run["pattern"]["velo"] = pattern_metrics(matched, np.concatenate(velo_reconstructible_all))
-        atomic_write_json(run, staging / "run.json")
+    with RunStaging(out, overwrite) as staging:
+        done = staging.finished(keys)
+        if done and echo:
+            echo(f"resuming: {len(done)} of {len(keys)} partitions already done")
+        todo = [t for t in _tasks(plan, config, staging.path) if t.name not in done]
+        events_of = {p.name: p.n_events for p in plan.partitions}
+        use_workers = 1 if scheduler is None and (workers <= 1 or len(todo) <= 1) else workers
+        if todo and (use_workers > 1 or scheduler is not None):
+            reconstruct_task(todo[0], max_events=1)  # compile or load kernels here: workers load the cache
+        with tqdm(total=plan.n_events, initial=sum(events_of[n] for n in done), unit="event",
+                  desc="reconstruct", disable=None if progress is None else not progress) as bar:
+            def on_done(entry):
+                done[entry["name"]] = entry
+                bar.update(events_of[entry["name"]])
+
+            t0 = time.perf_counter()
+            execute(todo, use_workers, scheduler, on_done)
+            work_wall = time.perf_counter() - t0
+        run = _run_json(plan, run_config, done, dataset_path)
+        run["execution"] = {"workers": None if scheduler else use_workers, "scheduler": scheduler,
+                            "partitions": len(keys), "resumed_partitions": len(keys) - len(todo),
+                            "events_processed": sum(events_of[t.name] for t in todo),
+                            "wall_s": work_wall, "total_wall_s": time.perf_counter() - wall0}
+        w = run["execution"]
+        w["events_per_s"] = w["events_processed"] / work_wall if work_wall > 0 and todo else None
+        atomic_write_json(run, staging.path / "run.json")
+        staging.finish()
     return run
 
 
-def _sorted(table: pa.Table) -> pa.Table:
-    """Rows ordered by event, track, then fitter and location (run tables are sorted by event)."""
-    keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location") if k in table.column_names]
-    return table.sort_by(keys)
+def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Path) -> dict:
+    """run.json from the partitions' journal entries, summed in partition order."""
+    entries = [done[p.name] for p in plan.partitions]
+    fitters = list(run_config["fitters"])
+    counts = {"events": 0, "hits": 0, "candidates": 0, "tracks": {f: 0 for f in fitters}}
+    timing: dict = {}
+    fit = {f: {"wall_s": 0.0, "tracks": 0, "nodes": 0} for f in fitters}
+    pattern = {"pattern": None, "velo": None}
+    for e in entries:
+        s = e["summary"]
+        for k in ("events", "hits", "candidates"):
+            counts[k] += s[k]
+        for f in fitters:
+            counts["tracks"][f] += s["tracks"][f]
+            for k in fit[f]:
+                fit[f][k] += s["fit"][f][k]
+        for stage, t in s["timing"].items():
+            entry = timing.setdefault(stage, {"wall_s": 0.0, "cpu_s": 0.0})
+            entry["wall_s"] += t["wall_s"]
+            entry["cpu_s"] += t["cpu_s"]
+        for k in pattern:
+            if k in s:
+                pattern[k] = {c: (pattern[k] or {}).get(c, 0) + v for c, v in s[k].items()}
+    run = {
+        "pkf_version": pkf.__version__,
+        "kind": "run",
+        "config": run_config | {"dataset": str(dataset_path)},
+        "input": {"path": str(dataset_path.resolve()), "content_hash": plan.content_hash(),
+                  "geometry": plan.geometry.name, "geometry_hash": plan.geometry.content_hash,
+                  "files": {name: [{"path": str(f), "sha256": h} for f, h in zip(scan.files, scan.sha256)]
+                            for name, scan in plan.tables.items()}},
+        "counts": counts,
+        "timing": _timing_json(timing, fit),
+        "partitions": [{"name": p.name, "key": p.key, "first_event": p.first_event, "last_event": p.last_event,
+                        "events": p.n_events, "input_file": str(plan.tables["hits"].files[p.file_index]),
+                        "hits_rows": list(p.hits_rows), "files": done[p.name]["files"]}
+                       for p in plan.partitions],
+    }
+    if plan.has_mc and pattern["pattern"] is not None:
+        run["pattern"] = metrics_from_counts(pattern["pattern"])
+        run["pattern"]["definition"] = ("long tracks (with SciFi hits) against long-reconstructible "
+                                        "particles (DESIGN §10)")
+        run["pattern"]["velo"] = metrics_from_counts(pattern["velo"])
+    return run
 
 
-def _chunk_bounds(event_id: np.ndarray, events_per_chunk: int) -> list[tuple[int, int]]:
-    """Row ranges of consecutive events, at most `events_per_chunk` events each."""
-    starts = np.flatnonzero(np.r_[True, event_id[1:] != event_id[:-1]])
-    cuts = list(starts[::events_per_chunk]) + [event_id.size]
-    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:])]
-
-
-def _global_tracks(cand_event, cand_track):
-    """Number of tracks and the global (chunk) track index of each candidate hit."""
-    if cand_event.size == 0:
-        return 0, np.zeros(0, dtype=np.int64)
-    new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
-    index = np.cumsum(new) - 1
-    return int(index[-1] + 1), index
-
-
-def _track_keys(cand_event, cand_track, n_tracks):
-    """(event_id, track_id) of each global track index."""
-    if n_tracks == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
-    return cand_event[new], cand_track[new]
-
-
-def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarray):
-    track_of_node = np.repeat(np.arange(batch.n_tracks), batch.n_nodes)
-    sub = geometry.layer_subdetector[batch.layer]
-    out = {}
-    for i, name in enumerate(SUBDETECTORS):
-        sel = (sub == i) & active
-        out[name] = np.bincount(track_of_node[sel], minlength=batch.n_tracks)
-    return out
-
-
-def _chi2_table(fitter, geometry, batch, result, track_event, track_id, mc_particle, fraction, ghost):
-    counts = _subdetector_counts(geometry, batch, result.node_active)
-    ok = result.status == STATUS_OK
-    ndf = result.ndf
-    return table_from_columns(CHI2, {
-        "event_id": track_event, "track_id": track_id, "fitter": fitter.name,
-        "n_velo": counts["velo"], "n_ut": counts["ut"], "n_scifi": counts["scifi"],
-        "n_outliers": result.n_outliers, "chi2": result.chi2, "ndf": ndf,
-        "chi2_ndf": np.where(ok & (ndf > 0), result.chi2 / np.maximum(ndf, 1), np.nan),
-        "status": np.array(STATUS_NAMES, dtype=object)[result.status],
-        "mc_particle_id": mc_particle, "match_fraction": fraction, "is_ghost": ghost,
-    })
-
-
-def _states_table(fitter, result, track_event, track_id):
-    ok = result.status == STATUS_OK
-    parts = []
-    for location, (z, state, cov) in result.locations.items():
-        cols = {"event_id": track_event[ok], "track_id": track_id[ok], "fitter": fitter.name,
-                "location": location, "z": z[ok]}
-        cols.update({name: state[ok, i] for i, name in enumerate(STATE_NAMES)})
-        cols.update(pack_covariance(cov[ok]))
-        parts.append(table_from_columns(STATES, cols))
-    return pa.concat_tables(parts)
-
-
-def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_truth, production):
-    """Residuals and pulls at each location for tracks matched to a particle.
-
-    Truth at the first/last hit: the mc_hit state of that node's hit (q/p replaced by the
-    production q/p for fitters whose states carry it); at the beamline: the production
-    vertex and momentum, straight-line extrapolated to the fitted z."""
-    ok = (result.status == STATUS_OK) & (mc_particle > 0)
-    pkey = particle_key(track_event, mc_particle)
-    pos = np.searchsorted(production["key"], pkey) if production else None
-    has_particle = np.zeros(ok.size, dtype=bool)
-    if production:
-        pos = np.minimum(pos, production["key"].size - 1)
-        has_particle = production["key"][pos] == pkey
-    parts = []
-    node_index = {"first_hit": batch.offsets[:-1], "last_hit": batch.offsets[1:] - 1}
-    for location, (z, state, cov) in result.locations.items():
-        if location == "beamline":
-            if not production:
-                continue
-            sel = ok & has_particle
-            q = pos[sel]
-            dz = z[sel] - production["vz"][q]
-            truth = np.column_stack([production["vx"][q] + production["tx"][q] * dz,
-                                     production["vy"][q] + production["ty"][q] * dz,
-                                     production["tx"][q], production["ty"][q], production["qop"][q]])
-        else:
-            nodes = np.minimum(node_index[location], max(batch.z.size - 1, 0))
-            truth_all = hit_truth[batch.hit_row[nodes]] if batch.z.size else np.zeros((0, 5))
-            sel = ok & np.all(np.isfinite(truth_all), axis=1)
-            if fitter.qop_at_production:
-                sel &= has_particle
-            truth = truth_all[sel]
-            if fitter.qop_at_production:
-                truth[:, 4] = production["qop"][pos[sel]]
-        est = state[sel]
-        sigma = np.sqrt(np.maximum(np.einsum("nii->ni", cov[sel]), 0.0))
-        res = est - truth
-        cols = {"event_id": track_event[sel], "track_id": track_id[sel], "fitter": fitter.name,
-                "location": location, "p_true": 1.0 / np.abs(truth[:, 4])}
-        for i, name in enumerate(STATE_NAMES):
-            cols[f"res_{name}"] = res[:, i]
-            cols[f"pull_{name}"] = res[:, i] / sigma[:, i]
-        parts.append(table_from_columns(PULLS, cols))
-    return pa.concat_tables(parts)
-
-
-def _timing_json(timing: _Timing, fit_stats: dict) -> dict:
-    out = {stage: {"wall_s": timing.wall[stage], "cpu_s": timing.cpu[stage]}
-           for stage in timing.wall if not stage.startswith("fit.")}
+def _timing_json(timing: dict, fit_stats: dict) -> dict:
+    """Per stage wall_s/cpu_s summed over partitions; per fitter speeds (after JIT warm-up)."""
+    out = {stage: dict(t) for stage, t in timing.items() if not stage.startswith("fit.")}
     out["fit"] = {}
     for name, stats in fit_stats.items():
         wall = stats["wall_s"]
         out["fit"][name] = {
-            "wall_s": wall, "cpu_s": timing.cpu.get(f"fit.{name}", 0.0), "tracks": stats["tracks"],
+            "wall_s": wall, "cpu_s": timing.get(f"fit.{name}", {}).get("cpu_s", 0.0), "tracks": stats["tracks"],
             "tracks_per_s": stats["tracks"] / wall if wall > 0 else None,
             "ns_per_node": 1e9 * wall / stats["nodes"] if stats["nodes"] else None,
         }

@@ -1,0 +1,211 @@
+"""Streaming validation and row-range reading of big tables (DESIGN §6, §13), in bounded memory.
+
+A table (one Parquet file or a directory of them) is scanned record batch by record
+batch: every check of :mod:`pkf.io.reader` is applied to each batch, and the checks
+that span rows (sorted by ``event_id``, unique ids) also across batch and file
+boundaries by carrying the rows of the last event into the next batch. The scan keeps
+only an index of events (first row of each event, 16 bytes per event) and a SHA-256
+of each file; :func:`read_rows` then reads any row range back, touching only the row
+groups that hold it. Messages name the file and the 0-based row within that file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from pkf.errors import InputError
+from pkf.io.reader import (
+    TableSource,
+    _list_parquet_files,
+    _one_line,
+    _validate_values,
+    convert_to_schema,
+    find_table,
+    open_checked,
+)
+from pkf.io.schemas import spec_for
+
+__all__ = ["OffsetSource", "TableScan", "scan_table", "read_rows", "file_sha256", "BATCH_ROWS"]
+
+#: Rows per record batch of a scan (about 15 MB of hits): bounds the scan's memory.
+BATCH_ROWS = 1 << 18
+
+
+@dataclass(frozen=True)
+class OffsetSource(TableSource):
+    """A :class:`TableSource` for a slice of files: ``bases[k]`` is the file row of the
+    first table row that comes from ``files[k]`` (so messages give rows within the file)."""
+
+    bases: tuple[int, ...] = ()
+
+    def locate(self, row: int) -> tuple[str, int]:
+        k = int(np.searchsorted(np.asarray(self.offsets), row, side="right")) - 1
+        k = min(max(k, 0), len(self.files) - 1)
+        return str(self.files[k]), self.bases[k] + row - self.offsets[k]
+
+
+def file_sha256(path: str | os.PathLike, block: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's bytes, read in blocks of ``block`` bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(block):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class TableScan:
+    """What a validated scan of one table found.
+
+    Attributes:
+        name: table name (``hits``, ``particles``, ``mc_hits``).
+        schema: its pkf schema.
+        files: Parquet files in reading order.
+        file_rows: table row of the first row of each file, plus the total (len(files) + 1).
+        events: the distinct event ids, in order.
+        starts: table row of the first row of each event, plus the total (len(events) + 1).
+        sha256: hex SHA-256 of each file.
+    """
+
+    name: str
+    schema: pa.Schema
+    files: tuple[Path, ...]
+    file_rows: tuple[int, ...]
+    events: np.ndarray
+    starts: np.ndarray
+    sha256: tuple[str, ...]
+
+    @property
+    def n_rows(self) -> int:
+        return self.file_rows[-1]
+
+    def rows_of_events(self, first_event: int | None, stop_event: int | None) -> tuple[int, int]:
+        """Table rows [lo, hi) of the events in [first_event, stop_event) (None: unbounded)."""
+        lo = 0 if first_event is None else int(self.starts[np.searchsorted(self.events, first_event)])
+        hi = self.n_rows if stop_event is None else int(self.starts[np.searchsorted(self.events, stop_event)])
+        return lo, hi
+
+    def source(self, lo: int, hi: int) -> OffsetSource:
+        """The source of table rows [lo, hi), for messages naming the file and its row."""
+        files, offsets, bases = [], [], []
+        for k, file in enumerate(self.files):
+            a, b = max(lo, self.file_rows[k]), min(hi, self.file_rows[k + 1])
+            if a < b or (not files and k == len(self.files) - 1):
+                files.append(file)
+                offsets.append(a - lo)
+                bases.append(a - self.file_rows[k])
+        return OffsetSource(self.files[0] if len(self.files) == 1 else Path(os.path.commonpath(self.files)),
+                            tuple(files), tuple(offsets) + (hi - lo,), tuple(bases))
+
+
+def scan_table(location: Path, schema: pa.Schema, name: str,
+               check: Callable[[pa.Table, OffsetSource], None] | None = None) -> TableScan:
+    """Validate the table at ``location`` (a file or a directory of files) batch by batch.
+
+    Args:
+        location: the table, as found by :func:`~pkf.io.reader.find_table`.
+        schema: its pkf schema (validation rules from :data:`~pkf.io.schemas.TABLE_SPECS`).
+        name: table name for messages.
+        check: an extra check of each batch (e.g. hits against the geometry's layers),
+            called with the batch (with the previous batch's last event in front) and its source.
+
+    Raises:
+        InputError: one line naming the file, the column and the first bad row.
+    """
+    spec = spec_for(schema)
+    key = spec.unique_key if spec is not None else ("event_id",)
+    files = _list_parquet_files(location) if location.is_dir() else [location]
+    if not files and (spec is None or not spec.allow_empty):
+        raise InputError(f"{location}: directory contains no Parquet files ({name} must not be empty)")
+    file_rows, events, starts, hashes = [0], [], [], []
+    carry: list[tuple[Path, int, pa.Table]] = []  # (file, file row, rows) of the last event so far
+    total = 0
+    for file in files:
+        pf = open_checked(file, schema, name)
+        base = 0
+        try:
+            batches = pf.iter_batches(batch_size=BATCH_ROWS, columns=schema.names, use_threads=True)
+            while True:
+                try:
+                    batch = next(batches)
+                except StopIteration:
+                    break
+                except (pa.ArrowException, OSError) as exc:
+                    raise InputError(f"{file}: corrupt or truncated Parquet file ({_one_line(exc)})") from None
+                raw = pa.Table.from_batches([batch])
+                table = convert_to_schema(raw, schema, OffsetSource(file, (file,), (0, raw.num_rows), (base,)), key)
+                if table.num_rows == 0:
+                    continue
+                segments = carry + [(file, base, table)]
+                both = pa.concat_tables([t for _, _, t in segments]) if carry else table
+                offsets = tuple(int(x) for x in np.cumsum([0] + [t.num_rows for _, _, t in segments]))
+                source = OffsetSource(file, tuple(f for f, _, _ in segments), offsets,
+                                      tuple(r for _, r, _ in segments))
+                _validate_values(both, schema, spec, source)
+                if check is not None:
+                    check(both, source)
+                ev = table.column("event_id").to_numpy()
+                new = np.flatnonzero(np.r_[True, ev[1:] != ev[:-1]])
+                if events and ev[0] == events[-1]:
+                    new = new[1:]  # the event goes on from the previous batch
+                events.extend(ev[new].tolist())
+                starts.extend((total + new).tolist())
+                last_start = int(np.flatnonzero(ev == ev[-1])[0])
+                tail = (file, base + last_start, table.slice(last_start))
+                carry = carry + [tail] if last_start == 0 and carry and events[-1] == ev[0] and not new.size else [tail]
+                total += table.num_rows
+                base += table.num_rows
+        finally:
+            pf.close()
+        file_rows.append(total)
+        hashes.append(file_sha256(file))
+    if total == 0 and spec is not None and not spec.allow_empty:
+        raise InputError(f"{location}: table is empty (no rows)")
+    return TableScan(name, schema, tuple(files), tuple(file_rows), np.asarray(events, dtype=np.int64),
+                     np.asarray(starts + [total], dtype=np.int64), tuple(hashes))
+
+
+def find_and_scan(dataset: Path, name: str, schema: pa.Schema, required: bool,
+                  check: Callable[[pa.Table, OffsetSource], None] | None = None) -> TableScan | None:
+    """Locate table ``name`` of a dataset directory and scan it; None if absent and not required."""
+    location = find_table(dataset, name)
+    if location is None:
+        if required:
+            raise InputError(f"{dataset}: table {name!r} not found (expected {name}.parquet or {name}/)")
+        return None
+    return scan_table(location, schema, name, check)
+
+
+def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None = None) -> pa.Table:
+    """Table rows [lo, hi) of a scanned table, reading only the row groups that hold them.
+
+    Returns the rows with the table's schema (or only ``columns``, in that order).
+    """
+    import pyarrow.parquet as pq
+
+    names = list(columns) if columns is not None else scan.schema.names
+    schema = pa.schema([scan.schema.field(n) for n in names])
+    parts = []
+    for k, file in enumerate(scan.files):
+        a, b = max(lo, scan.file_rows[k]), min(hi, scan.file_rows[k + 1])
+        if a >= b:
+            continue
+        a, b = a - scan.file_rows[k], b - scan.file_rows[k]
+        with pq.ParquetFile(file) as pf:
+            sizes = [pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)]
+            edges = np.cumsum([0] + sizes)
+            first = int(np.searchsorted(edges, a, side="right")) - 1
+            last = int(np.searchsorted(edges, b, side="left"))
+            raw = pf.read_row_groups(list(range(first, last)), columns=names, use_threads=True)
+        raw = raw.slice(a - int(edges[first]), b - a)
+        parts.append(convert_to_schema(raw, schema, str(file), ()))
+    if not parts:
+        return schema.empty_table()
+    return pa.concat_tables(parts).combine_chunks() if len(parts) > 1 else parts[0]

@@ -1,0 +1,321 @@
+"""Reconstruction of one batch of events: pattern recognition, fits, MC matching, run-table rows.
+
+The unit of work of `pkf reconstruct` (DESIGN §6–§10): a worker gets a batch's hits and
+MC truth, returns its rows of ``candidates``, ``chi2``, ``states``, ``pulls`` and a small
+summary (counts, timing, pattern-recognition counts) that adds up over batches. The
+output of a batch depends only on its events, so any split into batches and any number
+of workers give the same rows.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyarrow as pa
+
+from pkf.fit.beamline import straight_line_extrapolator
+from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
+from pkf.fit.fitters import get_fitter
+from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
+from pkf.geometry.detector import SUBDETECTORS, Geometry
+from pkf.io.reader import Dataset
+from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES, pack_covariance, table_from_columns
+from pkf.params.parameter_set import load_parameters
+from pkf.pipeline.inputs import (
+    STATE_NAMES,
+    _PARTICLE_KEY_BASE,
+    align_mc,
+    column,
+    particle_key,
+    production_truth,
+)
+from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
+from pkf.pipeline.triplet_pattern import triplet_candidates
+from pkf.pipeline.truth_pattern import truth_candidates
+
+RUN_TABLES = ("candidates", "chi2", "states", "pulls")
+RUN_SCHEMAS = {"candidates": CANDIDATES, "chi2": CHI2, "states": STATES, "pulls": PULLS}
+
+
+class _Clock:
+    """Adds wall and CPU seconds of a ``with`` block to ``timing[stage]``."""
+
+    def __init__(self, timing: dict, stage: str):
+        self.timing, self.stage = timing, stage
+
+    def __enter__(self):
+        self.w, self.c = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc):
+        self.elapsed = time.perf_counter() - self.w
+        entry = self.timing.setdefault(self.stage, {"wall_s": 0.0, "cpu_s": 0.0})
+        entry["wall_s"] += self.elapsed
+        entry["cpu_s"] += time.process_time() - self.c
+
+
+@dataclass
+class ReconstructionContext:
+    """What every batch of a run needs: geometry, field, extrapolators, fit options.
+
+    Built once per process (:func:`context_for`); ``warmed`` records that the fit
+    kernels were compiled or loaded from numba's cache before the first timed fit.
+    """
+
+    geometry: Geometry
+    pattern: str
+    fitters_ext: list
+    pattern_ext: object
+    beamline_ext: object
+    field_map: object
+    fit_options: FitOptions
+    warmed: bool = field(default=False)
+
+
+_CONTEXTS: dict = {}
+
+
+def context_for(geometry: Geometry, config) -> ReconstructionContext:
+    """The (per-process cached) context of ``geometry`` and a ReconstructionConfig."""
+    key = (geometry.content_hash, config)
+    if key not in _CONTEXTS:
+        fitters = [get_fitter(name) for name in config.fitters]
+        _CONTEXTS.clear()
+        _CONTEXTS[key] = ReconstructionContext(
+            geometry=geometry,
+            pattern=config.pattern,
+            fitters_ext=[(f, f.make_extrapolator(geometry, config.params)) for f in fitters],
+            # the forward extension of the triplet pattern uses the parametrized extrapolations
+            pattern_ext=(load_parameters(geometry, config.params).extrapolator(geometry)
+                         if config.pattern == "triplet" else None),
+            beamline_ext=straight_line_extrapolator(geometry),
+            field_map=geometry.reconstruction_field(),
+            fit_options=FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
+                                   iterations=config.iterations),
+        )
+    return _CONTEXTS[key]
+
+
+def _warm_up(fitters_ext, batch: TrackBatch, seeds, covs, options, beamline_ext) -> None:
+    """Compile (or load from cache) every kernel on a few tracks before timing."""
+    n = min(batch.n_tracks, 3)
+    if n == 0:
+        return
+    end = batch.offsets[n]
+    small = TrackBatch(batch.offsets[: n + 1], batch.z[:end], batch.layer[:end], batch.hit_row[:end],
+                       batch.n_meas[:end], batch.hx[:end], batch.hy[:end], batch.m[:end], batch.sigma[:end])
+    for fitter, ext in fitters_ext:
+        fitter.fit(ext, small, options, seeds[:n], covs[:n], beamline_ext)
+
+
+def pattern_counts(matched: np.ndarray, reconstructible: np.ndarray) -> dict:
+    """Counts behind efficiency, ghost and clone rate (DESIGN §10) that add up over batches
+    (particle keys are unique per event, and a batch holds whole events)."""
+    real = matched[matched >= 0]
+    unique_real = np.unique(real)
+    return {"tracks": int(matched.size), "ghosts": int(np.sum(matched < 0)), "real": int(real.size),
+            "unique_real": int(unique_real.size), "reconstructible": int(reconstructible.size),
+            "found": int(np.sum(np.isin(reconstructible, unique_real)))}
+
+
+def metrics_from_counts(c: dict) -> dict:
+    """Efficiency, ghost rate and clone rate from summed :func:`pattern_counts` (as pattern_metrics)."""
+    return {
+        "tracks": c["tracks"],
+        "reconstructible": c["reconstructible"],
+        "efficiency": c["found"] / c["reconstructible"] if c["reconstructible"] else None,
+        "ghost_rate": c["ghosts"] / c["tracks"] if c["tracks"] else None,
+        "clone_rate": (c["real"] - c["unique_real"]) / c["real"] if c["real"] else None,
+    }
+
+
+def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, dict]:
+    """Reconstruct the events of ``data`` (hits, and MC truth if present, of whole events).
+
+    Returns:
+        (tables, summary): the batch's rows per run table (sorted by event, track,
+        fitter, location) and its summary: ``events``, ``hits``, ``candidates``,
+        ``tracks`` per fitter, ``timing`` per stage (wall_s, cpu_s), ``fit`` per
+        fitter (wall_s, tracks, nodes) and, with MC, ``pattern``/``velo`` counts.
+    """
+    geometry = ctx.geometry
+    chunk = data.hits
+    ev = column(chunk, "event_id", np.int64)
+    has_mc = data.mc_hits is not None
+    if has_mc:
+        hit_particle, hit_truth = align_mc(data, ev)
+        production = production_truth(data)
+    fitter_names = [f.name for f, _ in ctx.fitters_ext]
+    timing: dict = {}
+    summary = {"events": int(np.unique(ev).size), "hits": int(chunk.num_rows), "candidates": 0,
+               "tracks": {n: 0 for n in fitter_names}, "fit": {n: {"wall_s": 0.0, "tracks": 0, "nodes": 0}
+                                                              for n in fitter_names}}
+    layer = column(chunk, "layer", np.int64)
+    with _Clock(timing, "pattern"):
+        if ctx.pattern == "truth":
+            cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle)
+        else:
+            cand_event, cand_track, cand_row = triplet_candidates(
+                geometry, ctx.pattern_ext, ev, layer, column(chunk, "u"), column(chunk, "v"),
+                column(chunk, "z"), column(chunk, "sigma_u"), column(chunk, "sigma_v"))
+        n_tracks, track_of_hit = _global_tracks(cand_event, cand_track)
+        batch = TrackBatch.from_candidates(
+            geometry, track_of_hit, cand_row, layer, column(chunk, "u"),
+            column(chunk, "v"), column(chunk, "sigma_u"), column(chunk, "sigma_v"), n_tracks)
+        seeds, seed_covs, _ = seed_batch(batch, ctx.field_map)
+    track_event, track_id = _track_keys(cand_event, cand_track, n_tracks)
+    hit_id = column(chunk, "hit_id", np.int64)
+    tables = {"candidates": [table_from_columns(CANDIDATES, {
+        "event_id": cand_event, "track_id": cand_track, "hit_id": hit_id[cand_row]})],
+        "chi2": [], "states": [], "pulls": []}
+    summary["candidates"] = n_tracks
+    if has_mc:
+        hit_key = particle_key(ev, hit_particle)
+        mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
+        mc_particle = np.where(mc_id >= 0, mc_id % _PARTICLE_KEY_BASE, -1)
+        scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
+                                 == SUBDETECTORS.index("scifi"), minlength=n_tracks)
+        is_long = scifi_hits > 0
+        summary["pattern"] = pattern_counts(mc_id[is_long], reconstructible_particles(geometry, hit_key, layer))
+        summary["velo"] = pattern_counts(mc_id, velo_reconstructible_particles(geometry, hit_key, layer))
+    else:
+        mc_particle = np.full(n_tracks, -1, dtype=np.int64)
+        fraction = np.zeros(n_tracks)
+        ghost = np.ones(n_tracks, dtype=bool)
+    if not ctx.warmed and n_tracks:
+        _warm_up(ctx.fitters_ext, batch, seeds, seed_covs, ctx.fit_options, ctx.beamline_ext)
+        ctx.warmed = True
+    for fitter, ext in ctx.fitters_ext:
+        with _Clock(timing, f"fit.{fitter.name}") as clock:
+            result = fitter.fit(ext, batch, ctx.fit_options, seeds, seed_covs, ctx.beamline_ext)
+        stats = summary["fit"][fitter.name]
+        stats["wall_s"] += clock.elapsed
+        stats["tracks"] += n_tracks
+        stats["nodes"] += int(batch.z.size)
+        summary["tracks"][fitter.name] += int(np.sum(result.status == STATUS_OK))
+        tables["chi2"].append(_chi2_table(fitter, geometry, batch, result, track_event, track_id,
+                                          mc_particle, fraction, ghost))
+        tables["states"].append(_states_table(fitter, result, track_event, track_id))
+        if has_mc:
+            tables["pulls"].append(_pulls_table(fitter, batch, result, track_event, track_id, mc_particle,
+                                                hit_truth, production))
+    summary["timing"] = timing
+    out = {}
+    for name in RUN_TABLES:
+        if name == "pulls" and not has_mc:
+            continue
+        parts = tables[name]
+        if not parts:
+            out[name] = RUN_SCHEMAS[name].empty_table()
+        else:  # candidates keep the pattern's hit order; the others are sorted
+            out[name] = pa.concat_tables(parts) if name == "candidates" else _sorted(pa.concat_tables(parts))
+    return out, summary
+
+
+def _sorted(table: pa.Table) -> pa.Table:
+    """Rows ordered by event, track, then fitter and location (run tables are sorted by event)."""
+    keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location") if k in table.column_names]
+    return table.sort_by(keys)
+
+
+def _global_tracks(cand_event, cand_track):
+    """Number of tracks and the global (chunk) track index of each candidate hit."""
+    if cand_event.size == 0:
+        return 0, np.zeros(0, dtype=np.int64)
+    new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
+    index = np.cumsum(new) - 1
+    return int(index[-1] + 1), index
+
+
+def _track_keys(cand_event, cand_track, n_tracks):
+    """(event_id, track_id) of each global track index."""
+    if n_tracks == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
+    return cand_event[new], cand_track[new]
+
+
+def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarray):
+    track_of_node = np.repeat(np.arange(batch.n_tracks), batch.n_nodes)
+    sub = geometry.layer_subdetector[batch.layer]
+    out = {}
+    for i, name in enumerate(SUBDETECTORS):
+        sel = (sub == i) & active
+        out[name] = np.bincount(track_of_node[sel], minlength=batch.n_tracks)
+    return out
+
+
+def _chi2_table(fitter, geometry, batch, result, track_event, track_id, mc_particle, fraction, ghost):
+    counts = _subdetector_counts(geometry, batch, result.node_active)
+    ok = result.status == STATUS_OK
+    ndf = result.ndf
+    return table_from_columns(CHI2, {
+        "event_id": track_event, "track_id": track_id, "fitter": fitter.name,
+        "n_velo": counts["velo"], "n_ut": counts["ut"], "n_scifi": counts["scifi"],
+        "n_outliers": result.n_outliers, "chi2": result.chi2, "ndf": ndf,
+        "chi2_ndf": np.where(ok & (ndf > 0), result.chi2 / np.maximum(ndf, 1), np.nan),
+        "status": np.array(STATUS_NAMES, dtype=object)[result.status],
+        "mc_particle_id": mc_particle, "match_fraction": fraction, "is_ghost": ghost,
+    })
+
+
+def _states_table(fitter, result, track_event, track_id):
+    ok = result.status == STATUS_OK
+    parts = []
+    for location, (z, state, cov) in result.locations.items():
+        cols = {"event_id": track_event[ok], "track_id": track_id[ok], "fitter": fitter.name,
+                "location": location, "z": z[ok]}
+        cols.update({name: state[ok, i] for i, name in enumerate(STATE_NAMES)})
+        cols.update(pack_covariance(cov[ok]))
+        parts.append(table_from_columns(STATES, cols))
+    return pa.concat_tables(parts)
+
+
+def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_truth, production):
+    """Residuals and pulls at each location for tracks matched to a particle.
+
+    Truth at the first/last hit: the mc_hit state of that node's hit (q/p replaced by the
+    production q/p for fitters whose states carry it); at the beamline: the production
+    vertex and momentum, straight-line extrapolated to the fitted z."""
+    ok = (result.status == STATUS_OK) & (mc_particle > 0)
+    pkey = particle_key(track_event, mc_particle)
+    pos = np.searchsorted(production["key"], pkey) if production else None
+    has_particle = np.zeros(ok.size, dtype=bool)
+    if production:
+        pos = np.minimum(pos, production["key"].size - 1)
+        has_particle = production["key"][pos] == pkey
+    parts = []
+    node_index = {"first_hit": batch.offsets[:-1], "last_hit": batch.offsets[1:] - 1}
+    for location, (z, state, cov) in result.locations.items():
+        if location == "beamline":
+            if not production:
+                continue
+            sel = ok & has_particle
+            q = pos[sel]
+            dz = z[sel] - production["vz"][q]
+            truth = np.column_stack([production["vx"][q] + production["tx"][q] * dz,
+                                     production["vy"][q] + production["ty"][q] * dz,
+                                     production["tx"][q], production["ty"][q], production["qop"][q]])
+        else:
+            nodes = np.minimum(node_index[location], max(batch.z.size - 1, 0))
+            truth_all = hit_truth[batch.hit_row[nodes]] if batch.z.size else np.zeros((0, 5))
+            sel = ok & np.all(np.isfinite(truth_all), axis=1)
+            if fitter.qop_at_production:
+                sel &= has_particle
+            truth = truth_all[sel]
+            if fitter.qop_at_production:
+                truth[:, 4] = production["qop"][pos[sel]]
+        est = state[sel]
+        sigma = np.sqrt(np.maximum(np.einsum("nii->ni", cov[sel]), 0.0))
+        res = est - truth
+        cols = {"event_id": track_event[sel], "track_id": track_id[sel], "fitter": fitter.name,
+                "location": location, "p_true": 1.0 / np.abs(truth[:, 4])}
+        for i, name in enumerate(STATE_NAMES):
+            cols[f"res_{name}"] = res[:, i]
+            cols[f"pull_{name}"] = res[:, i] / sigma[:, i]
+        parts.append(table_from_columns(PULLS, cols))
+    return pa.concat_tables(parts)
+
+

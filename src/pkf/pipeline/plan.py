@@ -1,0 +1,156 @@
+"""Planning a streamed reconstruction: validate a dataset in bounded memory and cut it into partitions.
+
+A partition is a batch of at most ``events_per_batch`` consecutive events of one input
+hits file (an event that goes on into the next file stays whole); it is the unit of
+work of the executors and of the output (one Parquet file per run table and partition).
+Partitions depend only on the data and ``events_per_batch``, never on the number of
+workers, so the run tables are the same whatever executes them (DESIGN §6, §13).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pkf.errors import InputError
+from pkf.geometry.detector import Geometry
+from pkf.io.reader import read_meta, validate_consistency, validate_hit_layers
+from pkf.io.schemas import HITS, MC_HITS, PARTICLES
+from pkf.io.stream import TableScan, find_and_scan, read_rows
+from pkf.pipeline.inputs import dataset_geometry
+
+__all__ = ["DatasetPlan", "Partition", "plan_dataset"]
+
+
+@dataclass(frozen=True)
+class Partition:
+    """One batch of events: its name, input rows and events.
+
+    Attributes:
+        name: ``part-FFFF-BBBBB`` (input file index, batch index within that file).
+        file_index: index of the hits file where its first event starts.
+        hits_rows: (lo, hi) rows of the hits table (all files together).
+        first_event, last_event: its first and last event id (inclusive).
+        n_events: number of events.
+        key: SHA-256 of everything its output depends on (inputs, rows, configuration).
+    """
+
+    name: str
+    file_index: int
+    hits_rows: tuple[int, int]
+    first_event: int
+    last_event: int
+    n_events: int
+    key: str = ""
+
+
+@dataclass(frozen=True)
+class DatasetPlan:
+    """A validated dataset ready for streamed reconstruction."""
+
+    path: Path
+    meta: dict
+    geometry: Geometry
+    tables: dict  # name -> TableScan (hits always; particles, mc_hits when present)
+    partitions: tuple[Partition, ...]
+
+    @property
+    def has_mc(self) -> bool:
+        return "mc_hits" in self.tables
+
+    @property
+    def n_events(self) -> int:
+        return int(self.tables["hits"].events.size)
+
+    @property
+    def n_hits(self) -> int:
+        return self.tables["hits"].n_rows
+
+    def content_hash(self) -> str:
+        """16 hex digits of SHA-256 over all table files (same as :func:`pkf.pipeline.inputs.content_hash`)."""
+        from pkf.pipeline.inputs import files_content_hash
+
+        return files_content_hash([f for scan in self.tables.values() for f in scan.files])
+
+
+def _partitions(hits: TableScan, events_per_batch: int) -> list[Partition]:
+    """Cut the events of each hits file into batches of at most ``events_per_batch``."""
+    starts = hits.starts[:-1]
+    file_of_event = np.searchsorted(np.asarray(hits.file_rows), starts, side="right") - 1
+    out = []
+    for f in np.unique(file_of_event):
+        idx = np.flatnonzero(file_of_event == f)
+        for b, first in enumerate(range(0, idx.size, events_per_batch)):
+            sel = idx[first:first + events_per_batch]
+            lo, hi = int(hits.starts[sel[0]]), int(hits.starts[sel[-1] + 1])
+            out.append(Partition(f"part-{int(f):04d}-{b:05d}", int(f), (lo, hi), int(hits.events[sel[0]]),
+                                 int(hits.events[sel[-1]]), int(sel.size)))
+    return out
+
+
+def _check_consistency(tables: dict, partitions: list[Partition]) -> None:
+    """MC truth against hits, one partition's event range at a time (ranges tile all event ids)."""
+    hits, mc, particles = tables["hits"], tables.get("mc_hits"), tables.get("particles")
+    if mc is None and particles is None:
+        return
+    bounds = [None] + [p.first_event for p in partitions[1:]] + [None]
+    for k in range(len(partitions)):
+        lo_ev, hi_ev = bounds[k], bounds[k + 1]
+        parts, sources = {}, {}
+        for name, scan, cols in (("hits", hits, ["event_id", "hit_id"]),
+                                 ("mc_hits", mc, ["event_id", "hit_id", "particle_id"]),
+                                 ("particles", particles, ["event_id", "particle_id", "parent_id"])):
+            if scan is None:
+                parts[name] = None
+                continue
+            lo, hi = scan.rows_of_events(lo_ev, hi_ev)
+            parts[name] = read_rows(scan, lo, hi, cols)
+            sources[name] = scan.source(lo, hi)
+        validate_consistency(parts["hits"], parts["particles"], parts["mc_hits"], sources=sources)
+
+
+def plan_dataset(path: str | Path, events_per_batch: int) -> DatasetPlan:
+    """Validate the dataset at ``path`` in bounded memory (DESIGN §13) and cut it into partitions.
+
+    Raises:
+        InputError: one line naming the file, the column and the first bad row.
+    """
+    path = Path(path)
+    if events_per_batch < 1:
+        raise InputError(f"--events-per-batch: must be >= 1, not {events_per_batch}")
+    if not path.exists():
+        raise InputError(f"{path}: dataset directory does not exist")
+    if not path.is_dir():
+        raise InputError(f"{path}: not a directory (a dataset is a directory with meta.json and hits)")
+    meta = read_meta(path)
+    geometry = dataset_geometry(path, meta)
+
+    def check_layers(table, source):
+        validate_hit_layers(table, geometry.layer_z, geometry.layer_kind, source=source)
+
+    tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers)}
+    for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
+        scan = find_and_scan(path, name, schema, False)
+        if scan is not None:
+            tables[name] = scan
+    partitions = _partitions(tables["hits"], events_per_batch)
+    _check_consistency(tables, partitions)
+    return DatasetPlan(path, meta, geometry, tables, tuple(partitions))
+
+
+def with_keys(plan: DatasetPlan, run_config: dict) -> DatasetPlan:
+    """The plan with each partition's ``key``: SHA-256 of the configuration, the input files'
+    hashes, and the partition's rows and events (what decides its output)."""
+    common = json.dumps({"config": run_config, "geometry": plan.geometry.content_hash,
+                         "inputs": {name: scan.sha256 for name, scan in sorted(plan.tables.items())}},
+                        sort_keys=True)
+    parts = []
+    for p in plan.partitions:
+        text = common + json.dumps([p.name, p.hits_rows, p.first_event, p.last_event, p.n_events])
+        parts.append(Partition(p.name, p.file_index, p.hits_rows, p.first_event, p.last_event, p.n_events,
+                               hashlib.sha256(text.encode()).hexdigest()))
+    return DatasetPlan(plan.path, plan.meta, plan.geometry, plan.tables, tuple(parts))
