@@ -170,7 +170,7 @@ def _execute_dask(tasks, scheduler, on_done) -> None:
     with client:
         futures = [client.submit(run_partition, t, pure=False) for t in tasks]
         try:
-            for future in as_completed(futures):
+            for future in as_completed(futures, loop=client.loop):
                 on_done(future.result())
         except BaseException:
             client.cancel(futures)
