@@ -34,7 +34,7 @@ class PartitionTask:
     Attributes:
         name, key: the partition's name and key (see :class:`pkf.pipeline.plan.Partition`).
         dataset: dataset directory (its geometry is read from there).
-        config: the ReconstructionConfig.
+        config: the ReconstructionConfig's fields (a dict: unpickling it imports nothing heavy).
         tables: per table name, (TableScan without event index, row lo, row hi).
         staging: the run's staging directory.
         numba_cache_dir: the parent's numba cache directory, used when it exists here.
@@ -43,7 +43,7 @@ class PartitionTask:
     name: str
     key: str
     dataset: str
-    config: object
+    config: dict
     tables: dict
     staging: str
     numba_cache_dir: str | None = None
@@ -78,8 +78,10 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None):
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
     from pkf.pipeline.batch import context_for, reconstruct_batch
+    from pkf.pipeline.reconstruct import ReconstructionConfig
 
-    ctx = context_for(_geometry(task.dataset), task.config)
+    config = ReconstructionConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in task.config.items()})
+    ctx = context_for(_geometry(task.dataset), config)
     parts = {}
     for name, (scan, lo, hi) in task.tables.items():
         parts[name] = read_rows(scan, lo, hi)
@@ -156,6 +158,10 @@ def _execute_local(tasks, workers, on_done) -> None:
             raise
 
 
+#: Seconds to wait for a Dask scheduler to answer.
+CONNECT_TIMEOUT_S = 10
+
+
 def _execute_dask(tasks, scheduler, on_done) -> None:
     from pkf.errors import InputError
 
@@ -164,7 +170,7 @@ def _execute_dask(tasks, scheduler, on_done) -> None:
     except ImportError:
         raise InputError("--scheduler: needs Dask distributed (pip install 'pkf[dask]')") from None
     try:
-        client = Client(scheduler, timeout="20s", set_as_default=False)
+        client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
         raise InputError(f"--scheduler {scheduler}: cannot connect ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
     with client:

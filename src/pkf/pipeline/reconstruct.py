@@ -81,7 +81,7 @@ def _tasks(plan: DatasetPlan, config, staging: Path) -> list[PartitionTask]:
         for name in ("particles", "mc_hits"):
             if name in plan.tables:
                 tables[name] = (light[name], *plan.tables[name].rows_of_events(p.first_event, p.last_event + 1))
-        tasks.append(PartitionTask(p.name, p.key, str(plan.path.resolve()), config, tables, str(staging),
+        tasks.append(PartitionTask(p.name, p.key, str(plan.path.resolve()), asdict(config), tables, str(staging),
                                    str(numba.config.CACHE_DIR)))
     return tasks
 

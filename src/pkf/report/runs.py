@@ -2,6 +2,8 @@
 
 A report (DESIGN §11) accepts one or more run directories (output of
 ``pkf reconstruct``, DESIGN §6): several fitters in one run, or one run per fitter.
+Each run table is one Parquet file (``chi2.parquet``) or, as `pkf reconstruct` writes
+it, a directory of partition files (``chi2/part-FFFF-BBBBB.parquet``, read in order).
 Fitters are merged by name; the same fitter in two runs is an error, since the
 report could not tell which one to show. Every problem is a one-line
 :class:`~pkf.errors.InputError` raised before anything is written.
@@ -99,7 +101,7 @@ def load_run(path: str | os.PathLike) -> RunInput:
     info = _read_run_json(path)
     for name in REQUIRED_TABLES:
         if find_table(path, name) is None:
-            raise InputError(f"{path}: table {name!r} not found (expected {name}.parquet; incomplete run directory)")
+            raise InputError(f"{path}: table {name!r} not found (expected {name}/ or {name}.parquet; incomplete run directory)")
     chi2 = read_table(path, CHI2, name="chi2")
     states = read_table(path, STATES, name="states")
     pulls = read_table(path, PULLS, name="pulls") if find_table(path, "pulls") is not None else None
@@ -110,7 +112,7 @@ def load_run(path: str | os.PathLike) -> RunInput:
     if isinstance(configured, list) and all(isinstance(f, str) for f in configured):
         extra = [f for f in in_table if f not in configured]
         if extra:
-            raise InputError(f"{path / 'chi2.parquet'}: fitter {extra[0]!r} is not in run.json config.fitters")
+            raise InputError(f"{find_table(path, 'chi2')}: fitter {extra[0]!r} is not in run.json config.fitters")
         fitters = tuple(configured)
     else:
         fitters = tuple(in_table)

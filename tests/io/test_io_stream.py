@@ -1,0 +1,76 @@
+"""Streamed validation (pkf.io.stream): checks that span batches and files, event index, row reads."""
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+import pkf.io.stream as stream
+from pkf.errors import InputError
+from pkf.io.reader import read_table
+from pkf.io.schemas import HITS
+
+
+def _hits(events, per_event=5, first_hit=0):
+    ev = np.repeat(np.asarray(events, dtype=np.int64), per_event)
+    hit = np.tile(np.arange(first_hit, first_hit + per_event, dtype=np.int64), len(events))
+    n = ev.size
+    return pa.table({"event_id": ev, "hit_id": hit, "layer": np.zeros(n, np.int16), "z": np.zeros(n),
+                     "u": np.arange(n, dtype=float), "v": np.zeros(n), "sigma_u": np.ones(n),
+                     "sigma_v": np.ones(n)}, schema=HITS)
+
+
+@pytest.fixture(autouse=True)
+def tiny_batches(monkeypatch):
+    monkeypatch.setattr(stream, "BATCH_ROWS", 3)  # every check crosses batch boundaries
+
+
+def _scan(path):
+    return stream.scan_table(path, HITS, "hits")
+
+
+def test_event_index_and_row_reads_across_files(tmp_path):
+    d = tmp_path / "hits"
+    d.mkdir()
+    pq.write_table(_hits([0, 1, 2]), d / "part-1.parquet", row_group_size=4)
+    pq.write_table(_hits([2], first_hit=5), d / "part-2.parquet")  # event 2 goes on in the next file
+    pq.write_table(_hits([7, 9]), d / "part-10.parquet", row_group_size=3)
+    scan = _scan(d)
+    assert scan.events.tolist() == [0, 1, 2, 7, 9]
+    assert scan.starts.tolist() == [0, 5, 10, 20, 25, 30]
+    assert scan.file_rows == (0, 15, 20, 30)
+    whole = read_table(d, HITS, name="hits")
+    for lo, hi in [(0, 30), (3, 17), (14, 16), (20, 21), (29, 30)]:
+        assert stream.read_rows(scan, lo, hi).equals(whole.slice(lo, hi - lo))
+    assert scan.rows_of_events(2, 8) == (10, 25)
+    assert scan.rows_of_events(None, 1) == (0, 5)
+
+
+def test_duplicate_across_files_names_the_later_file_and_row(tmp_path):
+    d = tmp_path / "hits"
+    d.mkdir()
+    pq.write_table(_hits([0, 1]), d / "part-0.parquet")
+    pq.write_table(_hits([1], first_hit=3), d / "part-1.parquet")  # hit_id 3, 4 again in event 1
+    with pytest.raises(InputError) as err:
+        _scan(d)
+    msg = str(err.value)
+    assert msg.startswith(f"{d / 'part-1.parquet'}: column 'hit_id': row 0 (event_id=1, hit_id=3) duplicates")
+    assert "part-0.parquet row 8" in msg
+
+
+def test_unsorted_across_batches_names_the_file_row(tmp_path):
+    f = tmp_path / "hits.parquet"
+    pq.write_table(pa.concat_tables([_hits([0, 1, 2]), _hits([1], first_hit=10)]), f)
+    with pytest.raises(InputError, match=r"hits.parquet: column 'event_id': row 15 \(event_id=1, hit_id=10\) "
+                                         r"comes after event_id=2"):
+        _scan(f)
+
+
+def test_nan_in_a_late_batch(tmp_path):
+    t = _hits([0, 1, 2, 3])
+    u = t.column("u").to_numpy().copy()
+    u[13] = np.nan
+    f = tmp_path / "hits.parquet"
+    pq.write_table(t.set_column(4, HITS.field("u"), pa.array(u)), f)
+    with pytest.raises(InputError, match=r"column 'u': row 13 \(event_id=2, hit_id=3\) is NaN"):
+        _scan(f)
