@@ -165,12 +165,12 @@ class ForwardOptions:
     line_ms [1600]             (3) … ⊕ scattering in the SciFi: (line_ms·q/p) [mm·MeV]
     slope_ms [1.7]             (3) slope prior of the line: σ² = σtx²(start, given q/p) +
                                (slope_ms·q/p)² (scattering UT → SciFi) [MeV]
-    line_chi2 [9]              (3) cut on the line χ²/ndf
-    stereo_candidates [6]      (3) clusters checked on the stereo layers
+    line_chi2 [16]             (3) cut on the line χ²/ndf
+    stereo_candidates [24]     (3) clusters checked on the stereo layers
     max_clusters [3]           (3) clusters followed by the combinatorial KF per scan
     pseudo_floor [0.3]         (3) added in quadrature to the pseudo-measurement σ [mm]
     window_sigmas [5]          (3, 4) SciFi windows and Δχ² cut [σ]
-    max_branch [2]             (3, 4) hits kept per layer and branch (best Δχ²)
+    max_branch [3]             (3, 4) hits kept per layer and branch (best Δχ²)
     scifi_min_hits [10]        (3, 4) SciFi hits (of 12)
     miss_penalty [9]           (3, 4) ranking: χ² − miss_penalty·hits, lowest first
     scifi_model_noise [6450]   (3, 4) noise of the SciFi layer steps × (1 + (this·q/p)²) [MeV]
@@ -207,7 +207,7 @@ class ForwardOptions:
     node_spacing: float = 0.5
     max_clusters: int = 3
     window_sigmas: float = 5.0
-    max_branch: int = 2
+    max_branch: int = 3
     scifi_min_hits: int = 10
     no_ut_min_hits: int = 11
     no_ut_pvalue: float = 0.01
@@ -215,11 +215,11 @@ class ForwardOptions:
     pseudo_floor: float = 0.3
     line_sigma: float = 0.15
     line_ms: float = 1600.0
-    line_chi2: float = 9.0
+    line_chi2: float = 16.0
     slope_ms: float = 1.7
     scifi_model_noise: float = 6450.0
     ut_candidates: int = 3
-    stereo_candidates: int = 6
+    stereo_candidates: int = 24
     miss_penalty: float = 9.0
     good_pvalue: float = 0.01
     pvalue: float = 1e-4
