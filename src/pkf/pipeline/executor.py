@@ -50,9 +50,12 @@ class PartitionTask:
 
 
 def _use_numba_cache(cache_dir: str | None) -> None:
+    """In a worker process: use the parent's numba cache (if it exists here) before any kernel
+    is imported. Set in the environment too: numba re-reads its configuration from there."""
     if cache_dir and not os.environ.get("NUMBA_CACHE_DIR") and os.path.isdir(cache_dir):
         import numba
 
+        os.environ["NUMBA_CACHE_DIR"] = cache_dir
         numba.config.CACHE_DIR = cache_dir
 
 
@@ -74,7 +77,6 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None):
 
     max_events: only the first events (used to warm up numba's cache before starting workers).
     """
-    _use_numba_cache(task.numba_cache_dir)
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
     from pkf.pipeline.batch import context_for, reconstruct_batch
@@ -119,6 +121,12 @@ def run_partition(task: PartitionTask) -> dict:
 
 def _init_worker(cache_dir: str | None) -> None:
     _use_numba_cache(cache_dir)
+
+
+def run_partition_remote(task: PartitionTask) -> dict:
+    """:func:`run_partition` on a Dask worker: first point numba at the client's cache if it is here."""
+    _use_numba_cache(task.numba_cache_dir)
+    return run_partition(task)
 
 
 def execute(tasks: Iterable[PartitionTask], workers: int, scheduler: str | None,
@@ -174,7 +182,7 @@ def _execute_dask(tasks, scheduler, on_done) -> None:
     except (OSError, TimeoutError, ValueError) as exc:
         raise InputError(f"--scheduler {scheduler}: cannot connect ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
     with client:
-        futures = [client.submit(run_partition, t, pure=False) for t in tasks]
+        futures = [client.submit(run_partition_remote, t, pure=False) for t in tasks]
         try:
             for future in as_completed(futures, loop=client.loop):
                 on_done(future.result())
