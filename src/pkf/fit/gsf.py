@@ -111,8 +111,7 @@ from pkf.fit.extrapolator import (
     STATUS_OK,
     STATUS_TOO_FEW_HITS,
 )
-from pkf.fit.gx2f import fit_locations
-from pkf.fit.kalman import _node_chi2
+from pkf.fit.kalman import count_ndf, find_outlier, scalar_update
 from pkf.fit.linalg import (
     copy5,
     copy55,
@@ -128,7 +127,7 @@ from pkf.fit.reference import (
     add_plane_material,
     reference_extrapolator,
 )
-from pkf.fit.tracks import FitResult
+from pkf.fit.tracks import FitResult, fit_locations
 from pkf.geometry.acceptance import in_active_area
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
@@ -347,12 +346,7 @@ def _collapse(w, mu, cov, n, out_mean, out_cov):
         for c in range(n):
             s += w[c] * mu[c, k]
         out_mean[k] = s / total
-    for k in range(5):
-        for l in range(5):
-            s = 0.0
-            for c in range(n):
-                s += w[c] * (cov[c, k, l] + (mu[c, k] - out_mean[k]) * (mu[c, l] - out_mean[l]))
-            out_cov[k, l] = s / total
+    _second_moment(w, mu, cov, n, out_mean, out_cov)
 
 
 @nb.njit(cache=True)
@@ -575,33 +569,6 @@ def _propagate(ctx, direction, z_from, z_to, buf, n, nearest, nearest_d, alive, 
     return _normalise_and_cut(w, mu, cov, n, 0.0)
 
 
-@nb.njit(cache=True, inline="always")
-def _scalar_update(x, p, hx, hy, m, var):
-    """Kalman update with one scalar measurement; returns (r²/S, S), S ≤ 0 on failure."""
-    r = m - (hx * x[0] + hy * x[1])
-    ph0 = hx * p[0, 0] + hy * p[0, 1]
-    ph1 = hx * p[1, 0] + hy * p[1, 1]
-    s = var + hx * ph0 + hy * ph1
-    if not s > 0.0:
-        return 0.0, -1.0
-    ph2 = hx * p[2, 0] + hy * p[2, 1]
-    ph3 = hx * p[3, 0] + hy * p[3, 1]
-    ph4 = hx * p[4, 0] + hy * p[4, 1]
-    g = r / s
-    x[0] += ph0 * g
-    x[1] += ph1 * g
-    x[2] += ph2 * g
-    x[3] += ph3 * g
-    x[4] += ph4 * g
-    ph = (ph0, ph1, ph2, ph3, ph4)
-    for i in range(5):
-        for j in range(i, 5):
-            v = p[i, j] - ph[i] * ph[j] / s
-            p[i, j] = v
-            p[j, i] = v
-    return r * r / s, s
-
-
 @nb.njit(cache=True)
 def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     """Per-component Kalman update with node (n_meas, hx, hy, m, sigma) and weight
@@ -611,8 +578,8 @@ def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
         loglik = 0.0
         ok = True
         for j in range(n_meas):
-            inc, s = _scalar_update(mu[c], cov[c], hx[j], hy[j], m[j], sigma[j] * sigma[j])
-            if s <= 0.0:
+            inc, s = scalar_update(mu[c], cov[c], hx[j], hy[j], m[j], sigma[j] * sigma[j])
+            if not s > 0.0:
                 ok = False
                 break
             loglik -= 0.5 * (inc + math.log(s) + _LOG_2PI)
@@ -634,8 +601,8 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     _collapse(w, mu, cov, n, mean, cmat)
     chi2 = 0.0
     for j in range(n_meas):
-        inc, s = _scalar_update(mean, cmat, hx[j], hy[j], m[j], sigma[j] * sigma[j])
-        if s <= 0.0:
+        inc, s = scalar_update(mean, cmat, hx[j], hy[j], m[j], sigma[j] * sigma[j])
+        if not s > 0.0:
             return -1.0
         chi2 += inc
     return chi2
@@ -826,7 +793,6 @@ def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, 
     scratch = np.zeros((6, 5, 5))
     bh = np.zeros((3, max(k_bh, 1)))
     vec = np.zeros(20)
-    zero_cov = np.zeros((5, 5))
     for t in range(n_tracks):
         lo = offsets[t]
         hi = offsets[t + 1]
@@ -845,10 +811,7 @@ def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, 
         if not ok_seed:
             status = STATUS_NO_SEED
         while status == STATUS_OK:
-            ndf = -5
-            for k in range(n):
-                if active[k]:
-                    ndf += node_n_meas[lo + k]
+            ndf = count_ndf(node_n_meas[lo:hi], active)
             if ndf <= 0:
                 status = STATUS_TOO_FEW_HITS
                 break
@@ -858,25 +821,12 @@ def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, 
                 nearest, nearest_d, alive, scratch, bh, vec, out_state[lo:hi], out_cov[lo:hi])
             if status != STATUS_OK:
                 break
-            worst = -1
-            worst_excess = 0.0
-            for k in range(n):
-                c_node = _node_chi2(out_state[lo + k], out_cov[lo + k], node_n_meas[lo + k], node_hx[lo + k],
-                                    node_hy[lo + k], node_m[lo + k], node_sigma[lo + k], active[k])
-                if c_node < 0.0:
-                    # a mixture's covariance ("mean", "max-weight" outputs) can exceed the
-                    # measurement variance: standardise by the measurement variance alone
-                    c_node = _node_chi2(out_state[lo + k], zero_cov, node_n_meas[lo + k], node_hx[lo + k],
-                                        node_hy[lo + k], node_m[lo + k], node_sigma[lo + k], active[k])
-                out_node_chi2[lo + k] = c_node
-                if active[k]:
-                    excess = c_node / outlier_cuts[node_n_meas[lo + k] - 1]
-                    if excess > worst_excess:
-                        worst_excess = excess
-                        worst = k
-            if status != STATUS_OK:
-                break
-            if n_out < max_outliers and worst >= 0 and worst_excess > 1.0:
+            # outliers: the Kalman core's rule; a mixture's covariance ("mean", "max-weight"
+            # outputs) can exceed the measurement variance: then the measurement variance alone
+            status, worst = find_outlier(out_state[lo:hi], out_cov[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi],
+                                         node_hy[lo:hi], node_m[lo:hi], node_sigma[lo:hi], active, outlier_cuts,
+                                         out_node_chi2[lo:hi], True)
+            if n_out < max_outliers and worst >= 0:
                 active[worst] = False
                 n_out += 1
                 continue
@@ -896,13 +846,7 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     """GSF of every track of `batch` (a `TrackBatch`) with the context `extrapolator`
     (`gsf_extrapolator`), from the Kalman fitters' seeds and seed covariances.
     `options` (`FitOptions`): the outlier cut and maximum number of outliers."""
-    n = batch.z.size
-    t = batch.n_tracks
-    result = GsfResult(
-        node_state=np.full((n, 5), np.nan), node_cov=np.full((n, 5, 5), np.nan),
-        node_chi2=np.full(n, np.nan), node_active=np.ones(n, dtype=np.bool_),
-        status=np.zeros(t, dtype=np.int64), chi2=np.full(t, np.nan), ndf=np.zeros(t, dtype=np.int64),
-        n_outliers=np.zeros(t, dtype=np.int64), n_components=np.zeros(t, dtype=np.int64))
+    result = GsfResult.empty(batch, n_components=np.zeros(batch.n_tracks, dtype=np.int64))
     gsf_fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
                    np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
                    options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,

@@ -65,7 +65,6 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from pkf.fit.beamline import beamline_states
 from pkf.fit.extrapolator import (
     STATUS_EXTRAPOLATION_FAILED,
     STATUS_NO_SEED,
@@ -73,7 +72,7 @@ from pkf.fit.extrapolator import (
     STATUS_OK,
     STATUS_TOO_FEW_HITS,
 )
-from pkf.fit.kalman import _node_chi2
+from pkf.fit.kalman import add_node_information, count_ndf, find_outlier
 from pkf.fit.linalg import (
     copy5,
     copy55,
@@ -84,7 +83,7 @@ from pkf.fit.linalg import (
     symmetrise,
 )
 from pkf.fit.reference import MAX_SLOPE
-from pkf.fit.tracks import FitResult
+from pkf.fit.tracks import FitResult, fit_locations
 from pkf.geometry.acceptance import in_active_area
 from pkf.physics.materials import (
     SI_X0_MM,
@@ -258,17 +257,7 @@ def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta
             info[i, j] = 0.0
     for k in range(n - 1, -1, -1):
         if active[k]:
-            for j in range(n_meas[k]):
-                w = 1.0 / (sigma[k, j] * sigma[k, j])
-                h0 = hx[k, j]
-                h1 = hy[k, j]
-                r = m[k, j] - (h0 * node_state[k, 0] + h1 * node_state[k, 1])
-                info[0, 0] += h0 * h0 * w
-                info[0, 1] += h0 * h1 * w
-                info[1, 0] += h0 * h1 * w
-                info[1, 1] += h1 * h1 * w
-                vec[0] += h0 * r * w
-                vec[1] += h1 * r * w
+            add_node_information(info, vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], node_state[k])
         if k == 0:
             break
         # eliminate the angles of step k−1 → k, downstream plane first
@@ -464,10 +453,7 @@ def gx2f_fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m,
         if not ok_seed:
             status = STATUS_NO_SEED
         while status == STATUS_OK:
-            ndf = -5
-            for k in range(n):
-                if active[k]:
-                    ndf += n_meas[k]
+            ndf = count_ndf(n_meas, active)
             if ndf <= 0:
                 status = STATUS_TOO_FEW_HITS
                 break
@@ -506,22 +492,12 @@ def gx2f_fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m,
                 chi2 = new_chi2
             if status != STATUS_OK:
                 break
-            # ---- outliers
-            worst = -1
-            worst_excess = 0.0
-            for k in range(n):
-                c_node = _node_chi2(node_state[k], cov[k], n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
-                if c_node < 0.0:
-                    status = STATUS_NOT_POSITIVE_DEFINITE
-                out_node_chi2[lo + k] = c_node
-                if active[k]:
-                    excess = c_node / outlier_cuts[n_meas[k] - 1]
-                    if excess > worst_excess:
-                        worst_excess = excess
-                        worst = k
+            # ---- outliers (the Kalman core's rule)
+            status, worst = find_outlier(node_state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts,
+                                         out_node_chi2[lo:hi], False)
             if status != STATUS_OK:
                 break
-            if n_out < max_outliers and worst >= 0 and worst_excess > 1.0:
+            if n_out < max_outliers and worst >= 0:
                 active[worst] = False
                 n_out += 1
                 continue
@@ -544,30 +520,6 @@ def gx2f_fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m,
 # ----------------------------------------------------------------------------------
 
 
-def fit_locations(result: FitResult, batch, beamline_extrapolator=None) -> None:
-    """Add the first-hit, last-hit and beamline states to `result.locations` (as
-    `pkf.fit.tracks.fit_batch` does; the beamline state via `beamline_states`)."""
-    t = batch.n_tracks
-    has_nodes = batch.n_nodes > 0
-    first = np.where(has_nodes, batch.offsets[:-1], 0)
-    last = np.where(has_nodes, batch.offsets[1:] - 1, 0)
-    result.locations["first_hit"] = (batch.z[first], result.node_state[first], result.node_cov[first])
-    result.locations["last_hit"] = (batch.z[last], result.node_state[last], result.node_cov[last])
-    if beamline_extrapolator is not None:
-        idx = np.flatnonzero(result.status == STATUS_OK)
-        bz = np.full(t, np.nan)
-        bs = np.full((t, 5), np.nan)
-        bc = np.full((t, 5, 5), np.nan)
-        zb = np.empty(idx.size)
-        s_out = np.empty((idx.size, 5))
-        c_out = np.empty((idx.size, 5, 5))
-        beamline_states(beamline_extrapolator, np.ascontiguousarray(batch.z[first][idx]),
-                        np.ascontiguousarray(result.node_state[first][idx]),
-                        np.ascontiguousarray(result.node_cov[first][idx]), zb, s_out, c_out)
-        bz[idx], bs[idx], bc[idx] = zb, s_out, c_out
-        result.locations["beamline"] = (bz, bs, bc)
-
-
 def fit_batch_gx2f(extrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray | None = None,
                    beamline_extrapolator=None, max_updates: int = MAX_UPDATES,
                    relative_chi2_change: float = RELATIVE_CHI2_CHANGE) -> GX2FResult:
@@ -576,14 +528,8 @@ def fit_batch_gx2f(extrapolator, batch, options, seeds: np.ndarray, seed_covs: n
     `seeds` (T, 5) at the first nodes. `options` (`FitOptions`): the outlier cut and
     maximum number of outliers (iterations/smoother do not apply). seed_covs is accepted
     for the common fit signature and unused: the GX2F needs no prior covariance."""
-    n = batch.z.size
     t = batch.n_tracks
-    result = GX2FResult(
-        node_state=np.full((n, 5), np.nan), node_cov=np.full((n, 5, 5), np.nan),
-        node_chi2=np.full(n, np.nan), node_active=np.ones(n, dtype=np.bool_),
-        status=np.zeros(t, dtype=np.int64), chi2=np.full(t, np.nan), ndf=np.zeros(t, dtype=np.int64),
-        n_outliers=np.zeros(t, dtype=np.int64), iterations=np.zeros(t, dtype=np.int64),
-        converged=np.zeros(t, dtype=np.bool_))
+    result = GX2FResult.empty(batch, iterations=np.zeros(t, dtype=np.int64), converged=np.zeros(t, dtype=np.bool_))
     gx2f_fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m,
                     batch.sigma, np.ascontiguousarray(seeds, dtype=np.float64), options.outlier_cuts(),
                     int(options.max_outliers), int(max_updates), float(relative_chi2_change),

@@ -35,6 +35,11 @@ standardised χ² exceeds its cut by the largest factor is deactivated and the t
 refitted, at most `max_outliers` times; the cut for 2-D (pixel) nodes is the one with
 the same false-removal probability as `--outlier-chi2` for 1-D nodes (9 → 11.83). An outlier node gets no update (its filtered state is the
 prediction) but still receives an optimal state.
+
+Helpers every fitter shares (the GX2F and the GSF call them rather than copy them):
+`scalar_update` (the measurement update), `node_chi2` and `find_outlier` (the outlier
+statistic and the choice of the node to remove), `count_ndf`, `add_node_information`
+(measurements in information form).
 """
 
 from __future__ import annotations
@@ -102,10 +107,11 @@ def _invert_general(a, out, lu, perm):
 
 
 @nb.njit(cache=True, inline="always")
-def _scalar_update(x, p, hx, hy, m, var):
-    """Kalman update of (x, P) with one scalar measurement m = hx·x + hy·y (variance var).
-
-    Returns the filtered χ² increment r²/S, or −1 if S ≤ 0 (paper eqs. 4–8)."""
+def scalar_update(x, p, hx, hy, m, var):
+    """Kalman update of (x, P) in place with one scalar measurement m = hx·x + hy·y of
+    variance var [mm²] (paper eqs. 4–8). Returns (r²/S, S): the χ² increment of the
+    predicted residual r and its variance S = var + h·P·hᵀ; S ≤ 0 (nothing updated)
+    if P is not positive definite along h. Every fitter's measurement update."""
     r = m - (hx * x[0] + hy * x[1])
     # P·h only involves the first two columns
     s = var
@@ -113,7 +119,7 @@ def _scalar_update(x, p, hx, hy, m, var):
     ph1 = hx * p[1, 0] + hy * p[1, 1]
     s += hx * ph0 + hy * ph1
     if not s > 0.0:
-        return -1.0
+        return 0.0, s
     ph = (ph0, ph1, hx * p[2, 0] + hy * p[2, 1], hx * p[3, 0] + hy * p[3, 1], hx * p[4, 0] + hy * p[4, 1])
     for i in range(5):
         x[i] += ph[i] * r / s
@@ -122,14 +128,14 @@ def _scalar_update(x, p, hx, hy, m, var):
             v = p[i, j] - ph[i] * ph[j] / s
             p[i, j] = v
             p[j, i] = v
-    return r * r / s
+    return r * r / s, s
 
 
 @nb.njit(cache=True, inline="always")
-def _node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
+def node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
     """Standardised χ² r·R⁻¹·r of one node's smoothed residual r = m − H·x, with
     R = V − H·C·Hᵀ (active node) or V + H·C·Hᵀ (outlier) the residual's covariance;
-    −1 if R is not positive definite. Used to find outliers."""
+    −1 if R is not positive definite. Used to find outliers (`find_outlier`)."""
     sign = -1.0 if active else 1.0
     r0 = m[0] - (hx[0] * state[0] + hy[0] * state[1])
     v0 = sigma[0] * sigma[0]
@@ -149,6 +155,67 @@ def _node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
     if not (r00 > 0.0 and det > 0.0):
         return -1.0
     return (r0 * r0 * r11 - 2.0 * r0 * r1 * r01 + r1 * r1 * r00) / det
+
+
+@nb.njit(cache=True, inline="always")
+def count_ndf(n_meas, active):
+    """ndf = Σ measurement dimensions of the active nodes − 5 (DESIGN §8)."""
+    ndf = -5
+    for k in range(n_meas.size):
+        if active[k]:
+            ndf += n_meas[k]
+    return ndf
+
+
+@nb.njit(cache=True, inline="always")
+def add_node_information(info, info_vec, n_meas, hx, hy, m, sigma, state):
+    """Add one node's measurements in information form: Y += Σ_j h_jᵀh_j/σ_j²,
+    y += Σ_j h_jᵀ(m_j − h_j·state)/σ_j² (state = 0: the measured values themselves; the
+    current trajectory: its residuals). Y 5×5, y 5-vector, h_j = (hx_j, hy_j, 0, 0, 0)."""
+    for j in range(n_meas):
+        w = 1.0 / (sigma[j] * sigma[j])
+        h0 = hx[j]
+        h1 = hy[j]
+        r = m[j] - (h0 * state[0] + h1 * state[1])
+        info[0, 0] += h0 * h0 * w
+        info[0, 1] += h0 * h1 * w
+        info[1, 0] += h0 * h1 * w
+        info[1, 1] += h1 * h1 * w
+        info_vec[0] += h0 * r * w
+        info_vec[1] += h1 * r * w
+
+
+@nb.njit(cache=True)
+def find_outlier(state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts, out_node_chi2,
+                 measurement_only_fallback):
+    """Every node's standardised χ² (`node_chi2` of its output state and covariance) into
+    out_node_chi2, and the outlier candidate: the active node whose χ² exceeds its cut
+    (outlier_cuts[dimensions − 1]) by the largest factor.
+
+    Returns (status, candidate index, −1 if no active node exceeds its cut). A residual
+    covariance that is not positive definite gives STATUS_NOT_POSITIVE_DEFINITE, or, with
+    `measurement_only_fallback` (mixture outputs, whose covariance can exceed the
+    measurement variance), the χ² standardised by the measurement variance alone.
+    Shared by every fitter's outlier removal (DESIGN §8): the caller deactivates the
+    candidate and refits, at most `--max-outliers` times.
+    """
+    status = STATUS_OK
+    worst = -1
+    worst_excess = 1.0
+    for k in range(n_meas.size):
+        c_node = node_chi2(state[k], cov[k], n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
+        if c_node < 0.0:
+            if measurement_only_fallback:
+                c_node = node_chi2(state[k], np.zeros((5, 5)), n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
+            else:
+                status = STATUS_NOT_POSITIVE_DEFINITE
+        out_node_chi2[k] = c_node
+        if active[k]:
+            excess = c_node / outlier_cuts[n_meas[k] - 1]
+            if excess > worst_excess:
+                worst_excess = excess
+                worst = k
+    return status, worst
 
 
 @nb.njit(cache=True)
@@ -198,8 +265,8 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
         copy55(pred_cov[k], filt_cov[k])
         if active[k]:
             for j in range(n_meas[k]):
-                increment = _scalar_update(filt[k], filt_cov[k], hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
-                if increment < 0.0:
+                increment, s = scalar_update(filt[k], filt_cov[k], hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
+                if not s > 0.0:
                     return STATUS_NOT_POSITIVE_DEFINITE, chi2
                 chi2 += increment
     if smoother == SMOOTHER_NONE:
@@ -222,6 +289,7 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
     info = mats[2]  # Y
     info_vec = vec5[5:10]  # y
     spd_vec = vec5[10:20]
+    origin = vec5[20:25]  # zeros: the measurements enter as measured values
     vec5 = vec5[:5]
     for i in range(5):
         info_vec[i] = 0.0
@@ -231,20 +299,12 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
     tmp2 = mats[1]
     lu = mats[5]
     for i in range(5):
+        origin[i] = 0.0
         for j in range(5):
             info[i, j] = 0.0
     for k in range(n - 1, -1, -1):
         if active[k]:
-            for j in range(n_meas[k]):
-                w = 1.0 / (sigma[k, j] * sigma[k, j])
-                h0 = hx[k, j]
-                h1 = hy[k, j]
-                info[0, 0] += h0 * h0 * w
-                info[0, 1] += h0 * h1 * w
-                info[1, 0] += h0 * h1 * w
-                info[1, 1] += h1 * h1 * w
-                info_vec[0] += h0 * m[k, j] * w
-                info_vec[1] += h1 * m[k, j] * w
+            add_node_information(info, info_vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], origin)
         # combination in information form: C = (P⁻¹ + Y)⁻¹, x = C·(P⁻¹·x_p + y)
         if not invert_spd(pred_cov[k], inv, lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
@@ -381,7 +441,7 @@ def fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node
     ref = np.empty((max_nodes, 5))
     work = np.empty((6, 5, 5))
     mats = np.empty((6, 5, 5))
-    vec5 = np.empty(20)
+    vec5 = np.empty(25)
     perm = np.empty(5, dtype=np.int64)
     for t in range(n_tracks):
         lo = offsets[t]
@@ -395,10 +455,7 @@ def fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node
         ndf = 0
         have_reference = False
         while True:
-            ndf = -5
-            for k in range(n):
-                if active[k]:
-                    ndf += node_n_meas[lo + k]
+            ndf = count_ndf(node_n_meas[lo:hi], active)
             if ndf <= 0:
                 status = STATUS_TOO_FEW_HITS
                 break
@@ -416,23 +473,12 @@ def fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node
                 have_reference = True
             if status != STATUS_OK:
                 break
-            worst = -1
-            worst_excess = 0.0
-            for k in range(n):
-                c_node = _node_chi2(out_state[lo + k], out_cov[lo + k], node_n_meas[lo + k],
-                                             node_hx[lo + k], node_hy[lo + k], node_m[lo + k],
-                                             node_sigma[lo + k], active[k])
-                if c_node < 0.0:
-                    status = STATUS_NOT_POSITIVE_DEFINITE
-                out_node_chi2[lo + k] = c_node
-                if active[k]:
-                    excess = c_node / outlier_chi2[node_n_meas[lo + k] - 1]
-                    if excess > worst_excess:
-                        worst_excess = excess
-                        worst = k
+            status, worst = find_outlier(out_state[lo:hi], out_cov[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi],
+                                         node_hy[lo:hi], node_m[lo:hi], node_sigma[lo:hi], active, outlier_chi2,
+                                         out_node_chi2[lo:hi], False)
             if status != STATUS_OK:
                 break
-            if n_out < max_outliers and worst >= 0 and worst_excess > 1.0:
+            if n_out < max_outliers and worst >= 0:
                 active[worst] = False
                 n_out += 1
                 continue

@@ -1,8 +1,9 @@
 """Track batches (CSR) built from hits and candidates, and the Python entry point of the fit.
 
 `TrackBatch.from_candidates` turns candidate hit lists into the node arrays of the
-Kalman core (vectorised, no per-hit Python loop); `fit_batch` seeds, fits and adds
-the beamline state for any extrapolator.
+Kalman core (vectorised, no per-hit Python loop); `fit_batch` fits with the Kalman core
+for any extrapolator; `FitResult.empty` and `fit_locations` (first-hit, last-hit and
+beamline states) are the bookkeeping every fitter's entry point shares.
 """
 
 from __future__ import annotations
@@ -112,6 +113,17 @@ class FitResult:
     n_outliers: np.ndarray
     locations: dict = field(default_factory=dict)
 
+    @classmethod
+    def empty(cls, batch: TrackBatch, **fields):
+        """A result for `batch` before the fit: NaN states, covariances and χ², every node
+        active, status ok, zero ndf and outliers; `fields` set a subclass's own fields."""
+        n = batch.z.size
+        t = batch.n_tracks
+        return cls(node_state=np.full((n, 5), np.nan), node_cov=np.full((n, 5, 5), np.nan),
+                   node_chi2=np.full(n, np.nan), node_active=np.ones(n, dtype=np.bool_),
+                   status=np.zeros(t, dtype=np.int64), chi2=np.full(t, np.nan),
+                   ndf=np.zeros(t, dtype=np.int64), n_outliers=np.zeros(t, dtype=np.int64), **fields)
+
     def status_names(self) -> np.ndarray:
         return np.array(STATUS_NAMES, dtype=object)[self.status]
 
@@ -129,41 +141,38 @@ def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.nda
 def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.ndarray,
               seed_covs: np.ndarray, beamline_extrapolator=None) -> FitResult:
     """Fit every track of `batch` with `extrapolator` from the given seeds."""
-    n = batch.z.size
-    t = batch.n_tracks
-    node_state = np.full((n, 5), np.nan)
-    node_cov = np.full((n, 5, 5), np.nan)
-    node_chi2 = np.full(n, np.nan)
-    node_active = np.ones(n, dtype=np.bool_)
-    status = np.zeros(t, dtype=np.int64)
-    chi2 = np.full(t, np.nan)
-    ndf = np.zeros(t, dtype=np.int64)
-    n_outliers = np.zeros(t, dtype=np.int64)
+    result = FitResult.empty(batch)
     fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m,
                batch.sigma, np.ascontiguousarray(seeds), np.ascontiguousarray(seed_covs),
                options.outlier_cuts(), int(options.max_outliers), int(options.iterations),
-               int(options.smoother), node_state, node_cov, node_chi2, node_active, status, chi2,
-               ndf, n_outliers)
+               int(options.smoother), result.node_state, result.node_cov, result.node_chi2,
+               result.node_active, result.status, result.chi2, result.ndf, result.n_outliers)
     bad_seed = ~np.all(np.isfinite(seeds), axis=1)
-    status[bad_seed] = STATUS_NO_SEED
-    result = FitResult(node_state, node_cov, node_chi2, node_active, status, chi2, ndf, n_outliers)
+    result.status[bad_seed] = STATUS_NO_SEED
+    fit_locations(result, batch, beamline_extrapolator)
+    return result
+
+
+def fit_locations(result: FitResult, batch: TrackBatch, beamline_extrapolator=None) -> None:
+    """Add the first-hit and last-hit states and, given a beamline extrapolator, the
+    beamline state of the tracks with status ok (`beamline_states`, the same code for
+    every fitter, DESIGN §8) to `result.locations`: name → (z, state (T, 5), cov (T, 5, 5))."""
+    t = batch.n_tracks
     has_nodes = batch.n_nodes > 0
     first = np.where(has_nodes, batch.offsets[:-1], 0)
     last = np.where(has_nodes, batch.offsets[1:] - 1, 0)
-    result.locations["first_hit"] = (batch.z[first], node_state[first], node_cov[first])
-    result.locations["last_hit"] = (batch.z[last], node_state[last], node_cov[last])
+    result.locations["first_hit"] = (batch.z[first], result.node_state[first], result.node_cov[first])
+    result.locations["last_hit"] = (batch.z[last], result.node_state[last], result.node_cov[last])
     if beamline_extrapolator is not None:
-        ok = status == STATUS_OK
+        idx = np.flatnonzero(result.status == STATUS_OK)
         bz = np.full(t, np.nan)
         bs = np.full((t, 5), np.nan)
         bc = np.full((t, 5, 5), np.nan)
-        idx = np.flatnonzero(ok)
-        z_sel = np.ascontiguousarray(batch.z[first][idx])
+        zb = np.empty(idx.size)
         s_out = np.empty((idx.size, 5))
         c_out = np.empty((idx.size, 5, 5))
-        zb = np.empty(idx.size)
-        beamline_states(beamline_extrapolator, z_sel, np.ascontiguousarray(node_state[first][idx]),
-                        np.ascontiguousarray(node_cov[first][idx]), zb, s_out, c_out)
+        beamline_states(beamline_extrapolator, np.ascontiguousarray(batch.z[first][idx]),
+                        np.ascontiguousarray(result.node_state[first][idx]),
+                        np.ascontiguousarray(result.node_cov[first][idx]), zb, s_out, c_out)
         bz[idx], bs[idx], bc[idx] = zb, s_out, c_out
         result.locations["beamline"] = (bz, bs, bc)
-    return result
