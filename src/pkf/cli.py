@@ -69,6 +69,8 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
 @click.option("--iterations", default=1, show_default=True, type=int,
               help="Fit iterations; later ones linearise around the previous fit.")
+@click.option("--max-components", default=12, show_default=True, type=click.IntRange(min=1),
+              help="GSF: largest number of Gaussian-mixture components (KL merging).")
 @click.option("--workers", default=None, type=int,
               help="Local worker processes (default: all cores; 1 runs in this process).")
 @click.option("--scheduler", default=None,

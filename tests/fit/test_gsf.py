@@ -145,8 +145,48 @@ def test_kl_reduction_merges_the_closest_q_over_p_pair():
 def test_gsf_uses_the_electron_mass_and_bremsstrahlung_by_default():
     geometry = load_geometry("telescope")
     ctx = gsf_extrapolator(geometry)
-    assert ctx.bethe_heitler and ctx.ref.mass < 1.0 and ctx.max_components == 12
+    assert ctx.bethe_heitler and ctx.ref.mass < 1.0 and FitOptions().max_components == 12
     assert not gsf_extrapolator(geometry, mass=MASS_PION).bethe_heitler
     assert reference_extrapolator(geometry).mass == MASS_PION
     with pytest.raises(ValueError):
         gsf_extrapolator(geometry, output="median")
+
+
+def test_max_components_reaches_the_gsf(tmp_path, capsys):
+    """`pkf reconstruct --max-components N` limits the GSF's mixtures: through the API (the
+    smoothed mixture at the first hit has at most N components) and the command line (the
+    option is in run.json and changes the GSF's states; 0 is bad usage, exit 2)."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    from pkf.cli import main
+
+    geometry = load_geometry("telescope")
+    sample = TruthSample(geometry, events=10, seed=3, **ELECTRONS)
+    ctx = gsf_extrapolator(geometry)
+    for limit in (1, 4):
+        result = fit_batch_gsf(ctx, sample.batch, FitOptions(max_components=limit), sample.seeds,
+                               sample.seed_covs)
+        ok = result.status == 0
+        assert ok.mean() > 0.95 and result.n_components[ok].max() == limit
+    with pytest.raises(ValueError):
+        fit_batch_gsf(ctx, sample.batch, FitOptions(max_components=0), sample.seeds, sample.seed_covs)
+
+    data = tmp_path / "data"
+    assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun", "--events", "3",
+                 "--species", "electron", "--particles", "5", "--seed", "5"]) == 0
+    states = {}
+    for limit in ("1", "12"):
+        run = tmp_path / f"run{limit}"
+        assert main(["reconstruct", str(data), "--out", str(run), "--pattern", "truth", "--fitter", "gsf",
+                     "--max-components", limit, "--workers", "1"]) == 0
+        assert json.loads((run / "run.json").read_text())["config"]["max_components"] == int(limit)
+        table = pq.read_table(run / "states")
+        states[limit] = np.column_stack([table.column(c).to_numpy() for c in ("x", "tx", "qop")])
+    assert states["1"].shape == states["12"].shape
+    assert not np.allclose(states["1"], states["12"])
+    capsys.readouterr()
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "bad"), "--pattern", "truth", "--fitter", "gsf",
+                 "--max-components", "0"]) == 2
+    assert "--max-components" in capsys.readouterr().err

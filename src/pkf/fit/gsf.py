@@ -172,26 +172,24 @@ class GsfExtrapolator(NamedTuple):
     peak_window: float
 
 
-def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, max_components: int = MAX_COMPONENTS,
-                     weight_cut: float = WEIGHT_CUT, output: str = "mode", bethe_heitler: bool | None = None,
+def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, weight_cut: float = WEIGHT_CUT, output: str = "mode", bethe_heitler: bool | None = None,
                      share_jacobians: bool = True, mixture: BetheHeitlerMixture | None = None,
                      seed_qop_fraction: float = SEED_QOP_FRACTION, peak_window: float = PEAK_WINDOW,
                      field=None) -> GsfExtrapolator:
     """The GSF context for `geometry`: mass hypothesis [MeV] (bremsstrahlung modelled by
-    default only for the electron mass), at most `max_components`, the weight cut, the
-    output ("mode", "max-weight" or "mean"), Jacobian sharing, the Bethe–Heitler mixture
+    default only for the electron mass), the weight cut, the output ("mode", "max-weight" or "mean"), Jacobian sharing, the Bethe–Heitler mixture
     (the shipped one by default), the seed's q/p width in the first node's smoothing and
-    the "mode" output's peak window (see the module docstring)."""
+    the "mode" output's peak window (see the module docstring). The largest number of
+    components is a fit option (`FitOptions.max_components`, `--max-components`), set by
+    `fit_batch_gsf`; the context carries the default, MAX_COMPONENTS."""
     if output not in OUTPUTS:
         raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, not {output!r}")
-    if max_components < 1:
-        raise ValueError(f"max_components must be >= 1, not {max_components}")
     if bethe_heitler is None:
         bethe_heitler = abs(mass - MASS_ELECTRON) < 1e-6
     mixture = mixture or load_bethe_heitler_mixture()
     return GsfExtrapolator(reference_extrapolator(geometry, mass=mass, field=field),
                            np.ascontiguousarray(mixture.coefficients), float(mixture.t_min),
-                           float(mixture.t_max), bool(bethe_heitler), int(max_components), float(weight_cut),
+                           float(mixture.t_max), bool(bethe_heitler), MAX_COMPONENTS, float(weight_cut),
                            OUTPUTS[output], bool(share_jacobians), float(seed_qop_fraction),
                            float(peak_window))
 
@@ -845,9 +843,13 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
                   beamline_extrapolator=None) -> GsfResult:
     """GSF of every track of `batch` (a `TrackBatch`) with the context `extrapolator`
     (`gsf_extrapolator`), from the Kalman fitters' seeds and seed covariances.
-    `options` (`FitOptions`): the outlier cut and maximum number of outliers."""
+    `options` (`FitOptions`): the outlier cut, maximum number of outliers and the largest
+    number of mixture components (≥ 1)."""
+    if options.max_components < 1:
+        raise ValueError(f"max_components must be >= 1, not {options.max_components}")
+    ctx = extrapolator._replace(max_components=int(options.max_components))
     result = GsfResult.empty(batch, n_components=np.zeros(batch.n_tracks, dtype=np.int64))
-    gsf_fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+    gsf_fit_tracks(ctx, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
                    np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
                    options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
                    result.node_chi2, result.node_active, result.status, result.chi2, result.ndf,

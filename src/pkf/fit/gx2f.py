@@ -72,7 +72,7 @@ from pkf.fit.extrapolator import (
     STATUS_OK,
     STATUS_TOO_FEW_HITS,
 )
-from pkf.fit.kalman import add_node_information, count_ndf, find_outlier
+from pkf.fit.kalman import add_node_information, count_ndf, find_outlier, transport_information
 from pkf.fit.linalg import (
     copy5,
     copy55,
@@ -304,27 +304,7 @@ def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta
                     info[i, j] -= yg[i, 0] * lp[0, j] + yg[i, 1] * lp[1, j]
             symmetrise(info)
         # transport to node k−1: Y ← FᵀYF, y ← Fᵀy
-        f = jac[k]
-        for i in range(5):
-            for j in range(5):
-                s = 0.0
-                for l in range(5):
-                    s += info[i, l] * f[l, j]
-                tmp[i, j] = s
-        for i in range(5):
-            for j in range(i, 5):
-                s = 0.0
-                for l in range(5):
-                    s += f[l, i] * tmp[l, j]
-                info[i, j] = s
-                info[j, i] = s
-        for i in range(5):
-            s = 0.0
-            for l in range(5):
-                s += f[l, i] * vec[l]
-            tmp2[0, i] = s
-        for i in range(5):
-            vec[i] = tmp2[0, i]
+        transport_information(jac[k], info, vec, info, tmp, tmp2[0])
     if not invert_spd(info, node_cov[0], lu, spd_vec):
         return False
     for i in range(5):

@@ -38,8 +38,8 @@ prediction) but still receives an optimal state.
 
 Helpers every fitter shares (the GX2F and the GSF call them rather than copy them):
 `scalar_update` (the measurement update), `node_chi2` and `find_outlier` (the outlier
-statistic and the choice of the node to remove), `count_ndf`, `add_node_information`
-(measurements in information form).
+statistic and the choice of the node to remove), `count_ndf`, `add_node_information` and
+`transport_information` (measurements in information form and their transport upstream).
 """
 
 from __future__ import annotations
@@ -183,6 +183,32 @@ def add_node_information(info, info_vec, n_meas, hx, hy, m, sigma, state):
         info[1, 1] += h1 * h1 * w
         info_vec[0] += h0 * r * w
         info_vec[1] += h1 * r * w
+
+
+@nb.njit(cache=True, inline="always")
+def transport_information(f, a, vec, out, tmp, tmp_vec):
+    """Information of the state downstream of a step x′ = F·x, carried to upstream of it:
+    out = Fᵀ·a·F (5×5, symmetrised; out may be a) and vec ← Fᵀ·vec. tmp (5×5) and
+    tmp_vec (5) are scratch."""
+    for i in range(5):
+        for j in range(5):
+            s = 0.0
+            for l in range(5):
+                s += a[i, l] * f[l, j]
+            tmp[i, j] = s
+    for i in range(5):
+        for j in range(5):
+            s = 0.0
+            for l in range(5):
+                s += f[l, i] * tmp[l, j]
+            out[i, j] = s
+    symmetrise(out)
+    for i in range(5):
+        s = 0.0
+        for l in range(5):
+            s += f[l, i] * vec[l]
+        tmp_vec[i] = s
+    copy5(tmp_vec, vec)
 
 
 @nb.njit(cache=True)
@@ -344,28 +370,9 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
             s = 0.0
             for j in range(5):
                 s += inv[i, j] * vec5[j]
-            info_vec[i] = s  # M·(y − Y·a), Fᵀ applied below
-        # Y ← Fᵀ·(M·Y)·F
-        f = jac[k]
-        for i in range(5):
-            for j in range(5):
-                s = 0.0
-                for l in range(5):
-                    s += tmp[i, l] * f[l, j]
-                tmp2[i, j] = s
-        for i in range(5):
-            for j in range(5):
-                s = 0.0
-                for l in range(5):
-                    s += f[l, i] * tmp2[l, j]
-                info[i, j] = s
-        symmetrise(info)
-        for i in range(5):
-            s = 0.0
-            for l in range(5):
-                s += f[l, i] * info_vec[l]
-            vec5[i] = s
-        copy5(vec5, info_vec)
+            info_vec[i] = s  # M·(y − Y·a)
+        # Y ← Fᵀ·(M·Y)·F, y ← Fᵀ·M·(y − Y·a)
+        transport_information(jac[k], tmp, info_vec, info, tmp2, vec5)
     return STATUS_OK
 
 

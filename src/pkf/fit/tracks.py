@@ -81,14 +81,16 @@ class TrackBatch:
 
 @dataclass(frozen=True)
 class FitOptions:
-    """Options of the Kalman fit (DESIGN §8): outlier χ² cut and maximum number removed,
-    iterations (the 2nd and later linearise around the previous optimal states), and the
-    combination method (weighted mean, or the RTS smoother)."""
+    """Options of the fit (DESIGN §8, §9.5): outlier χ² cut and maximum number removed,
+    iterations of the Kalman fitters (the 2nd and later linearise around the previous
+    optimal states), their combination method (weighted mean, or the RTS smoother), and
+    the Gaussian-sum filter's largest number of mixture components (`--max-components`)."""
 
     outlier_chi2: float = 9.0
     max_outliers: int = 2
     iterations: int = 1
     smoother: int = SMOOTHER_WEIGHTED_MEAN
+    max_components: int = 12
 
     def outlier_cuts(self) -> np.ndarray:
         """Cuts on a node's standardised χ² for 1-D and 2-D nodes: `outlier_chi2` for 1-D,

@@ -94,7 +94,7 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
             beamline_ext=straight_line_extrapolator(geometry),
             field_map=geometry.reconstruction_field(),
             fit_options=FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
-                                   iterations=config.iterations),
+                                   iterations=config.iterations, max_components=config.max_components),
         )
     return _CONTEXTS[key]
 

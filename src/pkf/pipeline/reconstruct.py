@@ -45,6 +45,7 @@ class ReconstructionConfig:
     outlier_chi2: float = 9.0
     max_outliers: int = 2
     iterations: int = 1
+    max_components: int = 12
 
     def validate(self) -> list[Fitter]:
         if self.pattern not in PATTERNS:
