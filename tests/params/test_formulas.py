@@ -3,7 +3,17 @@
 import numpy as np
 import pytest
 
-from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
+from pkf.params.formulas import (
+    LAYER_TX_MONOMIALS,
+    LAYER_TX_OFFSET,
+    LAYER_TY_MONOMIALS,
+    LAYER_TY_OFFSET,
+    N_EXTRAPOLATION_PARAMS,
+    layer_step,
+    parametrized_noise,
+    velo_step,
+    velo_to_ut_step,
+)
 
 STATES = [
     np.array([3.0, -12.0, 0.05, -0.12, 1 / 4000.0]),
@@ -28,12 +38,26 @@ def _numeric_jacobian(step, p, s, z0, z1):
     return jac
 
 
+def _extended_layer_params():
+    """Eq. 14 parameters with every degree-4 monomial p15…p49 switched on, each scaled to
+    change the kick by O(1e-3)·qop·Δz at |x|, |y| ~ 300 mm, slopes ~ 0.2."""
+    p = np.zeros(N_EXTRAPOLATION_PARAMS)
+    p[:15] = [-0.08, 1e-4 * 0, 1e-9, 0.45, 2e-3, 0.5, -0.1, -0.03, 0.3, 2e-9, -4e-9, 3e-5, -2e-5, 1e-10, -2e-10]
+    rng = np.random.default_rng(3)
+    for offset, exponents in ((LAYER_TX_OFFSET, LAYER_TX_MONOMIALS), (LAYER_TY_OFFSET, LAYER_TY_MONOMIALS)):
+        for i, (a, b, c, d) in enumerate(exponents):
+            size = 300.0 ** (a + c) * 0.2 ** (b + d)
+            p[offset + i] = rng.normal(0, 1e-3) / size
+    return p
+
+
 @pytest.mark.parametrize("state", STATES)
 @pytest.mark.parametrize(
     "step, params, z0, z1",
     [
         (velo_step, np.array([-1.2e-7, 300.0] + [0] * 13), 100.0, 250.0),
         (layer_step, np.array([-0.08, 1e-4 * 0, 1e-9, 0.45, 2e-3, 0.5, -0.1, -0.03, 0.3, 2e-9, -4e-9, 3e-5, -2e-5, 1e-10, -2e-10]), 2327.5, 2372.5),
+        (layer_step, _extended_layer_params(), 8036.0, 8508.0),
         (velo_to_ut_step, np.array([3.0, -60.0, 0.01, 20.0, 1200.0, 0.1, 1e-5, 50.0, 0.5, 0, 0, 0, 0, 0, 0]), 300.0, 2327.5),
     ],
 )
@@ -76,3 +100,46 @@ def test_noise_matrix_follows_eq_11():
     assert noise[0, 2] == pytest.approx(0.8 * np.sqrt(noise[0, 0] * q_txtx))
     assert noise[1, 3] == pytest.approx(-0.5 * np.sqrt(noise[1, 1] * q_tyty))
     assert np.all(noise[4] == 0) and np.all(np.linalg.eigvalsh(noise[:4, :4]) >= -1e-20)
+
+
+def test_extended_layer_step_terms_are_the_listed_monomials():
+    """Each of p15…p49 adds exactly coefficient·qop·x^a·tx^b·y^c·ty^d to the tx kick (×Δz)
+    or to the ty kick, with the exponents of LAYER_TX/TY_MONOMIALS; a 15-entry (old) set
+    is the same step as the 50-entry set with zeros."""
+    s = np.array([-420.0, 910.0, -0.15, 0.12, 1 / 3500.0])
+    z0, z1 = 8036.0, 8508.0
+    base = np.zeros(N_EXTRAPOLATION_PARAMS)
+    base[:15] = [-0.08, 0.0, 1e-9, 0.45, 2e-3, 0.5, -0.1, -0.03, 0.3, 2e-9, -4e-9, 3e-5, -2e-5, 1e-10, -2e-10]
+    out0, out1, out_short = np.empty(5), np.empty(5), np.empty(5)
+    jac = np.empty((5, 5))
+    layer_step(base, s, z0, z1, out0, jac)
+    layer_step(base[:15].copy(), s, z0, z1, out_short, jac)
+    assert np.array_equal(out0, out_short)
+    for offset, exponents, row, factor in ((LAYER_TX_OFFSET, LAYER_TX_MONOMIALS, 2, z1 - z0),
+                                           (LAYER_TY_OFFSET, LAYER_TY_MONOMIALS, 3, 1.0)):
+        for i, (a, b, c, d) in enumerate(exponents):
+            p = base.copy()
+            term = s[4] * s[0] ** a * s[2] ** b * s[1] ** c * s[3] ** d * factor
+            p[offset + i] = 1e-6 / abs(term)  # a 1 µrad change of the slope
+            layer_step(p, s, z0, z1, out1, jac)
+            assert out1[row] - out0[row] == pytest.approx(p[offset + i] * term, rel=1e-8), (row, (a, b, c, d))
+            other = 5 - row  # the other slope (tx ↔ ty) is untouched
+            assert out1[other] == out0[other]
+
+
+def test_monomial_lists_follow_the_field_symmetry():
+    """tx kick: even in (x, tx) and in (y, ty); ty kick: odd in both (module docstring);
+    degree ≤ 4, no duplicates, none of the monomials p0…p14 already hold."""
+    tx_old = {(0, 0, 0, 0), (0, 0, 2, 0), (0, 2, 0, 0), (0, 0, 0, 2), (2, 0, 0, 0), (0, 0, 1, 1), (0, 0, 3, 1)}
+    ty_old = {(0, 1, 0, 1), (1, 0, 1, 0), (0, 1, 1, 0), (0, 1, 3, 0)}
+    for exponents, parity, old in ((LAYER_TX_MONOMIALS, 0, tx_old), (LAYER_TY_MONOMIALS, 1, ty_old)):
+        rows = {tuple(int(v) for v in e) for e in exponents}
+        assert len(rows) == len(exponents) and not rows & old
+        for a, b, c, d in rows:
+            assert a + b + c + d <= 4 and (a + b) % 2 == parity and (c + d) % 2 == parity
+        # complete: every allowed monomial of degree ≤ 4 is either old or listed
+        import itertools
+        allowed = {e for e in itertools.product(range(5), repeat=4)
+                   if sum(e) <= 4 and (e[0] + e[1]) % 2 == parity and (e[2] + e[3]) % 2 == parity}
+        assert rows | old == allowed
+    assert N_EXTRAPOLATION_PARAMS == LAYER_TY_OFFSET + len(LAYER_TY_MONOMIALS) == 50

@@ -36,7 +36,17 @@ from pkf.fit.parametrized import (
     STEP_VELO,
     STEP_VELO_TO_UT,
 )
-from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS, layer_step, velo_step, velo_to_ut_step
+from pkf.params.formulas import (
+    LAYER_TX_MONOMIALS,
+    LAYER_TX_OFFSET,
+    LAYER_TY_MONOMIALS,
+    LAYER_TY_OFFSET,
+    N_EXTRAPOLATION_PARAMS,
+    N_NOISE_PARAMS,
+    layer_step,
+    velo_step,
+    velo_to_ut_step,
+)
 from pkf.params.parameter_set import SlotStructure
 from pkf.report.gauss import gaussian_core
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate, ut_to_scifi_extrapolate_many
@@ -50,6 +60,11 @@ REFERENCE_MAX_STEP = 50.0
 POSITION_RESOLUTION_FLOOR = 1e-3
 #: 1/MeV: added to |q/p| in the per-pair scale of the extrapolation fits (1/(100 GeV))
 SCALE_FLOOR_QOP = 1e-5
+#: EM iterations before Minuit in `robust_linear_fit`, and their stopping rule (relative
+#: change of −ln L): with 20–30 parameters, Minuit started from the plain least squares
+#: (pulled by the outliers) needed ~2000 calls per fit
+EM_MAX_ITERATIONS = 50
+EM_TOLERANCE = 1e-9
 
 
 @dataclass
@@ -138,6 +153,112 @@ class FitReport:
         return {"valid": self.valid, "calls": self.calls, "points": self.points, "sigma": self.sigma}
 
 
+@nb.njit(cache=True)
+def _orthonormalize(a, q, r):
+    """Thin QR of a (n, k) by classical Gram–Schmidt with re-orthogonalisation (CGS2):
+    q (n, k, Fortran order) with columns of RMS 1 (qᵀq = n·I), r (k, k) upper triangular,
+    a = q·r. A column dependent on the earlier ones (relative norm < 1e-12 after the
+    projections) gets q = 0 and r[j, j] = 0. Plain loops, no BLAS: OpenBLAS threads on a
+    loaded 2-core machine made each matrix–vector product ~70× slower."""
+    n, k = a.shape
+    for j in range(k):
+        norm0 = 0.0
+        for i in range(n):
+            q[i, j] = a[i, j]
+            norm0 += a[i, j] * a[i, j]
+        for i in range(k):
+            r[i, j] = 0.0
+        for _ in range(2):
+            for m in range(j):
+                c = 0.0
+                for i in range(n):
+                    c += q[i, m] * q[i, j]
+                c /= n
+                r[m, j] += c
+                for i in range(n):
+                    q[i, j] -= c * q[i, m]
+        norm = 0.0
+        for i in range(n):
+            norm += q[i, j] * q[i, j]
+        if norm <= 1e-24 * norm0 or norm == 0.0:
+            for i in range(n):
+                q[i, j] = 0.0
+            continue
+        rms = math.sqrt(norm / n)
+        r[j, j] = rms
+        for i in range(n):
+            q[i, j] /= rms
+
+
+@nb.njit(cache=True)
+def _mixture_terms(q, y, gamma, log_sigma, norm, background, r, g):
+    """r = (y − q·γ)/σ and g = norm·exp(−r²/2)/σ per point; returns Σ −ln(g + background)."""
+    n, k = q.shape
+    s = math.exp(log_sigma)
+    for i in range(n):
+        r[i] = y[i]
+    for j in range(k):
+        c = gamma[j]
+        if c != 0.0:
+            for i in range(n):
+                r[i] -= c * q[i, j]
+    total = 0.0
+    for i in range(n):
+        r[i] /= s
+        g[i] = norm * math.exp(-0.5 * r[i] * r[i]) / s
+        total -= math.log(g[i] + background)
+    return total
+
+
+@nb.njit(cache=True)
+def _mixture_gradient(q, r, g, log_sigma, background, out):
+    """∂(−ln L)/∂γ_j = −Σ w·r·q_j/σ and ∂/∂ln σ = −Σ w·(r² − 1), w = g/(g + background)."""
+    n, k = q.shape
+    s = math.exp(log_sigma)
+    wr = np.empty(n)
+    d_log_sigma = 0.0
+    for i in range(n):
+        w = g[i] / (g[i] + background)
+        wr[i] = w * r[i]
+        d_log_sigma -= w * (r[i] * r[i] - 1.0)
+    for j in range(k):
+        c = 0.0
+        for i in range(n):
+            c += q[i, j] * wr[i]
+        out[j] = -c / s
+    out[k] = d_log_sigma
+
+
+@nb.njit(cache=True)
+def _residual(q, y, gamma, out):
+    """out = y − q·γ (plain loops: see `_orthonormalize`)."""
+    n, k = q.shape
+    for i in range(n):
+        out[i] = y[i]
+    for j in range(k):
+        c = gamma[j]
+        if c != 0.0:
+            for i in range(n):
+                out[i] -= c * q[i, j]
+
+
+@nb.njit(cache=True)
+def _weighted_normal_equations(q, y, w, gram, rhs):
+    """gram = qᵀ·W·q and rhs = qᵀ·W·y (W = diag w)."""
+    n, k = q.shape
+    for j in range(k):
+        c = 0.0
+        for i in range(n):
+            c += w[i] * q[i, j] * y[i]
+        rhs[j] = c
+        for m in range(j + 1):
+            c = 0.0
+            for i in range(n):
+                c += w[i] * q[i, j] * q[i, m]
+            gram[j, m] = c
+            gram[m, j] = c
+
+
 def robust_linear_fit(design: np.ndarray, target: np.ndarray, scale: np.ndarray | None = None
                       ) -> tuple[np.ndarray, FitReport]:
     """β maximising Σ log[(1−ε)·G(target − design·β; σ·scale) + ε/range] (eq. 12).
@@ -146,6 +267,15 @@ def robust_linear_fit(design: np.ndarray, target: np.ndarray, scale: np.ndarray 
     width is √Q_ss ∝ |q/p|, so the steps pass |q/p| (+ 1/100 GeV): without it the many
     high-momentum pairs with tiny residuals set σ and the low-momentum ones, whose
     residuals are larger, end up in the outlier term and do not shape the fit.
+
+    Numerics: the extended eq. 14 designs mix monomials from qop to qop·y⁴ [mm⁴] that are
+    strongly correlated (condition number up to ~1e8 after scaling the columns). The fit
+    therefore works in the coordinates γ of an orthonormal basis Q of the design
+    (design·diag(1/c) = Q·R, β = diag(1/c)·R⁻¹·γ), where the likelihood is nearly
+    isotropic: a few EM iterations (weighted least squares with the inlier posteriors,
+    each raising the likelihood) bring γ to the maximum, and iminuit (analytic gradient)
+    confirms it and reports its status. Parameters whose column depends linearly on the
+    earlier ones are set to 0.
     """
     if scale is not None:
         design = design / scale[:, None]
@@ -155,29 +285,74 @@ def robust_linear_fit(design: np.ndarray, target: np.ndarray, scale: np.ndarray 
     n, k = design.shape
     if n < 10 * k:
         return np.zeros(k), FitReport(False, 0, n)
-    beta0 = np.linalg.lstsq(design, target, rcond=None)[0]
-    resid = target - design @ beta0
+    scale_cols = np.maximum(np.sqrt(np.mean(design**2, axis=0)), 1e-300)
+    q = np.empty((n, k), order="F")
+    r_mat = np.zeros((k, k))
+    _orthonormalize(np.asfortranarray(design / scale_cols), q, r_mat)
+    independent = np.diag(r_mat) > 0.0
+    gram = np.empty((k, k))
+    gamma0 = np.empty(k)
+    _weighted_normal_equations(q, np.ascontiguousarray(target), np.ones(n), gram, gamma0)
+    gamma0 /= n  # least squares (qᵀq = n·I)
+    resid = np.empty(n)
+    _residual(q, np.ascontiguousarray(target), gamma0, resid)
     sigma0 = max(1.4826 * np.median(np.abs(resid - np.median(resid))), 1e-12 * (np.std(target) + 1e-30))
     span = max(np.ptp(target), 1e-300)
     # work in units of σ0 for numerical conditioning
-    scale_cols = np.maximum(np.std(design, axis=0), 1e-300)
-    xs = design / scale_cols
-    ys = target / sigma0
+    ys = np.ascontiguousarray(target / sigma0)
     background = OUTLIER_FRACTION * sigma0 / span
+    norm = (1 - OUTLIER_FRACTION) / math.sqrt(2 * math.pi)
+    r_buf = np.empty(n)
+    g_buf = np.empty(n)
 
     def nll(par):
-        beta, log_sigma = par[:k], par[k]
-        s = math.exp(log_sigma)
-        r = (ys - xs @ beta) / s
-        dens = (1 - OUTLIER_FRACTION) * np.exp(-0.5 * r * r) / (s * math.sqrt(2 * math.pi)) + background
-        return -np.sum(np.log(dens))
+        par = np.asarray(par, dtype=np.float64)
+        return _mixture_terms(q, ys, par[:k], par[k], norm, background, r_buf, g_buf)
 
-    start = np.concatenate([beta0 * scale_cols / sigma0, [0.0]])
-    m = Minuit(nll, start)
+    def grad(par):
+        par = np.asarray(par, dtype=np.float64)
+        _mixture_terms(q, ys, par[:k], par[k], norm, background, r_buf, g_buf)
+        out = np.empty(k + 1)
+        _mixture_gradient(q, r_buf, g_buf, par[k], background, out)
+        return out
+
+    # EM for this mixture (ε fixed): each iteration raises the likelihood
+    par = np.concatenate([gamma0 / sigma0, [0.0]])
+    last = nll(par)
+    rhs = np.empty(k)
+    for _ in range(EM_MAX_ITERATIONS):
+        nll(par)  # fills r_buf, g_buf at par
+        w = g_buf / (g_buf + background)
+        _weighted_normal_equations(q, ys, w, gram, rhs)
+        gram[~independent, :] = 0.0
+        gram[:, ~independent] = 0.0
+        gram[~independent, ~independent] = 1.0
+        gamma = np.linalg.solve(gram, np.where(independent, rhs, 0.0))
+        _residual(q, ys, gamma, resid)
+        sigma = math.sqrt(max(np.sum(w * resid**2) / max(np.sum(w), 1e-300), 1e-300))
+        trial = np.concatenate([gamma, [min(max(math.log(sigma), -7.0), 7.0)]])
+        value = nll(trial)
+        if not value <= last:  # no progress (or NaN): keep the best point
+            break
+        par, improvement, last = trial, last - value, value
+        if improvement < EM_TOLERANCE * max(abs(last), 1.0):
+            break
+    m = Minuit(nll, par, grad=grad)
     m.errordef = Minuit.LIKELIHOOD
     m.limits = [(None, None)] * k + [(-7.0, 7.0)]  # σ within e^±7 of the robust start
+    # in these coordinates the Hessian is ≈ n·I: steps of the expected errors, and no final
+    # numerical Hessian (strategy 0), which alone cost k² ≈ 800 calls
+    m.errors = [1.0 / math.sqrt(n)] * k + [1.0 / math.sqrt(2.0 * n)]
+    m.strategy = 0
+    for j in np.flatnonzero(~independent):
+        m.fixed[j] = True
     m.migrad()
-    beta = np.asarray(m.values)[:k] * sigma0 / scale_cols
+    gamma = np.asarray(m.values)[:k] * sigma0
+    beta_scaled = np.zeros(k)
+    idx = np.flatnonzero(independent)
+    if idx.size:
+        beta_scaled[idx] = np.linalg.solve(r_mat[np.ix_(idx, idx)], gamma[idx])
+    beta = beta_scaled / scale_cols
     return beta, FitReport(bool(m.valid), int(m.nfcn), n, float(math.exp(m.values[k]) * sigma0))
 
 
@@ -229,6 +404,12 @@ def _sign(v):
     return np.where(v >= 0, 1.0, -1.0)
 
 
+def _monomial(x, tx, y, ty, exponents):
+    """x^a·tx^b·y^c·ty^d for exponents (a, b, c, d) (`pkf.params.formulas.LAYER_TX_MONOMIALS`)."""
+    a, b, c, d = (int(e) for e in exponents)
+    return x**a * tx**b * y**c * ty**d
+
+
 def fit_extrapolation(kind: int, x1: np.ndarray, x2_ref: np.ndarray, z1: np.ndarray, z2: np.ndarray):
     """Extrapolation parameters (9,) of one slot from its pairs (step 1, eq. 12)."""
     p = np.zeros(N_EXTRAPOLATION_PARAMS)
@@ -245,20 +426,25 @@ def fit_extrapolation(kind: int, x1: np.ndarray, x2_ref: np.ndarray, z1: np.ndar
         p[0] = beta[0]
         p[1] = beta[1] / beta[0] if beta[0] != 0 else 0.0
     elif kind in (STEP_UT, STEP_SCIFI):
+        extra_tx = [qop * _monomial(x, tx, y, ty, e) for e in LAYER_TX_MONOMIALS]
         design = np.column_stack([qop, qop**3, y * y * qop, qop * tx * tx, qop * ty * ty, qop * x * x,
-                                  qop * ty * y, qop * ty * y**3])
+                                  qop * ty * y, qop * ty * y**3] + extra_tx)
         beta, reports["tx"] = robust_linear_fit_scaled(design, (x2_ref[:, 2] - tx) / dz)
         p[0:3] = beta[0:3]
         p[6:8] = beta[3:5]
         p[9] = beta[5]
         p[11] = beta[6]
         p[13] = beta[7]
+        p[LAYER_TX_OFFSET: LAYER_TX_OFFSET + len(extra_tx)] = beta[8:]
         f_tx = tx + (design @ beta) * dz
         beta, reports["x"] = robust_linear_fit_scaled(((tx - f_tx) * dz)[:, None], x2_ref[:, 0] - x - f_tx * dz)
         p[3] = beta[0]
-        design = np.column_stack([qop * tx * _sign(y), qop * tx * ty, qop * x * y, qop * tx * y, qop * tx * y**3])
+        extra_ty = [qop * _monomial(x, tx, y, ty, e) for e in LAYER_TY_MONOMIALS]
+        design = np.column_stack([qop * tx * _sign(y), qop * tx * ty, qop * x * y, qop * tx * y, qop * tx * y**3]
+                                 + extra_ty)
         beta, reports["ty"] = robust_linear_fit_scaled(design, x2_ref[:, 3] - ty)
-        p[4], p[8], p[10], p[12], p[14] = beta
+        p[4], p[8], p[10], p[12], p[14] = beta[:5]
+        p[LAYER_TY_OFFSET: LAYER_TY_OFFSET + len(extra_ty)] = beta[5:]
         f_ty = ty + design @ beta
         beta, reports["y"] = robust_linear_fit_scaled(((ty - f_ty) * dz)[:, None], x2_ref[:, 1] - y - f_ty * dz)
         p[5] = beta[0]

@@ -22,9 +22,16 @@ Conventions
 - B_s⁰ → φφ: kaons with ``from_signal``, |pdg| = 321, parent φ (333), grand-parent
   B_s (531) in the dataset's ``particles``; each kaon takes the fitted **beamline**
   state of its matched track (fit ``ok``, not a ghost; among clones the highest
-  match fraction, then the lowest track_id); decays with all four kaons found give a
-  candidate; mass from four-momenta with the kaon mass (:mod:`pkf.report.massfit`),
-  Gaussian + linear background, extended unbinned ML in the window.
+  match fraction, then the lowest track_id); decays whose four kaons are long
+  reconstructible particles (as for the efficiency; paper §5 uses only tracks with
+  measurements in every subdetector — a kaon seen in the VELO alone, or VELO + UT, has
+  no usable momentum: 70% of those had p_fit < 0.8·p_true, measured on 2000 events)
+  and all found give a candidate; mass from four-momenta with the kaon mass (:mod:`pkf.report.massfit`),
+  Gaussian + linear background, extended unbinned ML in the window. Each fitter's
+  ``fit`` uses its own candidates (paper Fig. 4); fitters can lose different decays (the
+  parametrized fitter has no state for a kaon below the UT→SciFi table's p_min = 3 GeV,
+  DESIGN §9.2), so ``ratio_to_reference`` compares σ(m) on the *common* candidates —
+  the same decays with the same kaons — with a jackknife error on the ratio.
 - Efficiency: reconstructible long particles of the dataset (DESIGN §10, via
   :func:`pkf.pipeline.matching.reconstructible_particles`); a particle is found by
   a fitter if a track of that fitter with fit status ``ok`` is matched to it; at
@@ -74,10 +81,16 @@ Top level:
     {``cuts``, ``real_efficiency``, ``ghost_rejection`` (null without ghosts); without
     MC instead ``all_efficiency`` (fraction of all tracks kept)}.
   - ``mass``: ``available``, ``note``, ``location``, ``n_signal_decays`` (B_s in the
-    dataset), ``n_candidates`` (decays with all four kaons fitted), ``fit`` =
+    dataset), ``n_long_decays`` (those whose four kaons are long reconstructible),
+    ``n_candidates`` (long decays with all four kaons fitted), ``fit`` =
     {``mean``, ``mean_error``, ``sigma``, ``sigma_error``, ``n_signal``,
     ``n_signal_error``, ``n_background``, ``n_background_error``, ``slope``,
-    ``n_candidates`` (in the window), ``window``, ``valid``, ``status``} [MeV].
+    ``n_candidates`` (in the window), ``window``, ``valid``, ``status``} [MeV];
+    ``ratio_to_reference``: null for the reference, without a reference or for another
+    dataset, else {``candidates`` (what they are), ``n_candidates`` (decays with all four
+    kaons fitted by both), ``fit`` and ``reference_fit`` (same keys as ``fit``, on those
+    candidates), ``sigma_ratio`` (this σ / reference σ), ``sigma_ratio_error``
+    (jackknife), ``error_method``}.
   - ``efficiency``: ``available``, ``note``, ``reconstructible``, ``found``,
     ``efficiency``, ``ghost_rate``, ``clone_rate`` (among this fitter's ok tracks),
     ``p_edges_mev``, ``vs_p`` and ``eta_edges``, ``vs_eta`` = {``reconstructible``,
@@ -101,7 +114,15 @@ from scipy.stats import beta
 import pkf
 from pkf.errors import InputError
 from pkf.report.gauss import gaussian_core
-from pkf.report.massfit import BS_MASS, KAON_MASS, MassFit, fit_mass_peak, four_momenta, invariant_mass
+from pkf.report.massfit import (
+    BS_MASS,
+    KAON_MASS,
+    MIN_CANDIDATES,
+    MassFit,
+    fit_mass_peak,
+    four_momenta,
+    invariant_mass,
+)
 from pkf.report.runs import REFERENCE_FITTER, RunInput, column, rows_of
 
 __all__ = [
@@ -129,6 +150,8 @@ ETA_EDGES = np.array([2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0])
 CHI2_NDF_CUTS = np.round(np.arange(0.5, 10.0001, 0.5), 6)
 #: B_s mass fit window [MeV].
 MASS_WINDOW_MEV = (BS_MASS - 250.0, BS_MASS + 250.0)
+#: Groups of the jackknife error of the σ(m) ratio on common candidates.
+MASS_JACKKNIFE_GROUPS = 20
 
 RESOLUTION_LOCATION = "first_hit"
 PULL_LOCATION = "first_hit"
@@ -150,6 +173,7 @@ class FitterArrays:
     chi2_ndf_ghost: np.ndarray = field(default_factory=lambda: np.zeros(0))
     chi2_ndf_all: np.ndarray = field(default_factory=lambda: np.zeros(0))
     masses: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mass_decays: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # decay index per mass
     mass_fit: MassFit | None = None
 
 
@@ -203,6 +227,10 @@ def _lookup(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.n
         return np.zeros(keys.size, dtype=np.int64), np.zeros(keys.size, dtype=bool)
     pos = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
     return pos, sorted_keys[pos] == keys
+
+
+def _fit_dict(values: dict) -> dict:
+    return {k: _f(v) if isinstance(v, float) else v for k, v in values.items()}
 
 
 def _section(available: bool, note: str | None = None, **values) -> dict:
@@ -478,12 +506,25 @@ def _efficiency_section(truth: _DatasetTruth, chi2_ok: pa.Table, has_mc: bool) -
 # ----------------------------------------------------------------------------- B_s mass
 
 
-def _bs_masses(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> np.ndarray:
-    """Four-kaon masses [MeV] of the signal decays whose four kaons have a fitted track."""
+def long_decays(truth: _DatasetTruth) -> np.ndarray:
+    """Per signal decay (row of ``truth.kaon_keys``): are its four kaons long reconstructible
+    particles (DESIGN §10: ≥ 3 VELO hits, an x and a stereo hit in every SciFi station)?"""
+    return np.isin(truth.kaon_keys, truth.reco_key).all(axis=1)
+
+
+def bs_kaon_state_rows(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table,
+                       long_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``states`` of the four kaons of each signal decay whose four kaons have a
+    fitted, matched track: (decay index into ``truth.kaon_keys`` (n,), rows (n, 4) in the
+    order of ``truth.kaon_keys``). Among clones the track with the highest match fraction,
+    then the lowest track key, is taken. With ``long_only`` only decays whose four kaons are
+    long reconstructible particles (`long_decays`; paper §5: "only tracks with
+    measurements in each of the subdetectors are considered")."""
     from pkf.pipeline.inputs import particle_key
 
+    none = (np.zeros(0, dtype=np.int64), np.zeros((0, 4), dtype=np.int64))
     if truth.kaon_keys.shape[0] == 0:
-        return np.zeros(0)
+        return none
     ghost = column(chi2_ok, "is_ghost", bool)
     mc = column(chi2_ok, "mc_particle_id", np.int64)
     sel = ~ghost & (mc > 0)
@@ -504,12 +545,75 @@ def _bs_masses(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> np.
     sorder = np.argsort(skey, kind="stable")
     spos, sfound = _lookup(skey[sorder], track)
     have = (kfound & sfound).reshape(-1, 4).all(axis=1)
+    if long_only:
+        have &= long_decays(truth)
     if not have.any():
-        return np.zeros(0)
-    rows = sorder[spos].reshape(-1, 4)[have].reshape(-1)
+        return none
+    return np.flatnonzero(have), sorder[spos].reshape(-1, 4)[have]
+
+
+def _bs_masses(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+    """Four-kaon masses [MeV] of the signal decays whose four kaons have a fitted track, and
+    the index of each decay in ``truth.kaon_keys`` (the same decay in every fitter's list)."""
+    decays, rows = bs_kaon_state_rows(truth, chi2_ok, states)
+    if decays.size == 0:
+        return np.zeros(0), decays
+    rows = rows.reshape(-1)
     mom = four_momenta(column(states, "qop")[rows], column(states, "tx")[rows], column(states, "ty")[rows],
                        KAON_MASS)
-    return invariant_mass(mom.reshape(-1, 4, 4))
+    return invariant_mass(mom.reshape(-1, 4, 4)), decays
+
+
+def _mass_sigma(masses: np.ndarray) -> float:
+    fit = fit_mass_peak(masses, MASS_WINDOW_MEV)
+    return fit.sigma if fit.valid else float("nan")
+
+
+def mass_ratio_on_common_candidates(masses: np.ndarray, reference_masses: np.ndarray,
+                                    groups: int = MASS_JACKKNIFE_GROUPS) -> dict:
+    """σ(m) of two fitters on the *same* B_s candidates and their ratio (paper Fig. 4).
+
+    ``masses`` and ``reference_masses`` are the four-kaon masses [MeV] of the same decays,
+    in the same order. Each is fitted with :func:`~pkf.report.massfit.fit_mass_peak`; the
+    two σ are strongly correlated (same decays, same kaons), so the ratio's error comes
+    from a delete-one-group jackknife over the candidates (``groups`` groups by position,
+    i mod groups): var = (G−1)/G·Σ(r_g − r̄)². Returns ``n_candidates``, ``fit`` and
+    ``reference_fit`` (MassFit dicts), ``sigma_ratio`` (NaN unless both fits reach a
+    valid minimum), ``sigma_ratio_error`` (NaN with fewer than 2·groups·MIN_CANDIDATES
+    candidates or a failed jackknife fit), ``jackknife_groups``.
+    """
+    masses = np.asarray(masses, dtype=float)
+    reference_masses = np.asarray(reference_masses, dtype=float)
+    fit = fit_mass_peak(masses, MASS_WINDOW_MEV)
+    ref = fit_mass_peak(reference_masses, MASS_WINDOW_MEV)
+    # a valid minimum suffices for σ (a background yield at its limit 0 makes the
+    # covariance "not accurate" without affecting σ; the fits keep their own status)
+    ratio = fit.sigma / ref.sigma if fit.valid and ref.valid else float("nan")
+    error = float("nan")
+    n = masses.size
+    if math.isfinite(ratio) and n >= 2 * groups * MIN_CANDIDATES:
+        label = np.arange(n) % groups
+        values = np.array([_mass_sigma(masses[label != g]) / _mass_sigma(reference_masses[label != g])
+                           for g in range(groups)])
+        if np.all(np.isfinite(values)):
+            error = math.sqrt((groups - 1) / groups * np.sum((values - values.mean()) ** 2))
+    return {"n_candidates": int(n), "fit": fit.as_dict(), "reference_fit": ref.as_dict(),
+            "sigma_ratio": ratio, "sigma_ratio_error": error, "jackknife_groups": groups}
+
+
+def _mass_comparison(mine: FitterArrays, reference: FitterArrays) -> dict:
+    """`mass_ratio_on_common_candidates` on the decays both fitters have a candidate for."""
+    common, i, j = np.intersect1d(mine.mass_decays, reference.mass_decays, return_indices=True)
+    result = mass_ratio_on_common_candidates(mine.masses[i], reference.masses[j])
+    return {
+        "candidates": "B_s decays with four long kaons that both fitters fitted (the same decays, the same kaons)",
+        "n_candidates": result["n_candidates"],
+        "fit": _fit_dict(result["fit"]),
+        "reference_fit": _fit_dict(result["reference_fit"]),
+        "sigma_ratio": _f(result["sigma_ratio"]),
+        "sigma_ratio_error": _f(result["sigma_ratio_error"]),
+        "error_method": f"delete-one-group jackknife, {result['jackknife_groups']} groups",
+    }
 
 
 # ----------------------------------------------------------------------------- timing
@@ -588,12 +692,13 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: _DatasetTrut
                         location=MASS_LOCATION, n_signal_decays=0)
     else:
         states = rows_of(run.states, name, MASS_LOCATION)
-        arrays.masses = _bs_masses(truth, chi2_ok, states)
+        arrays.masses, arrays.mass_decays = _bs_masses(truth, chi2_ok, states)
         arrays.mass_fit = fit_mass_peak(arrays.masses, MASS_WINDOW_MEV)
         mass = _section(
             arrays.mass_fit.status == "ok", None if arrays.mass_fit.status == "ok" else arrays.mass_fit.status,
-            location=MASS_LOCATION, n_signal_decays=truth.n_bs, n_candidates=int(arrays.masses.size),
-            fit={k: _f(v) if isinstance(v, float) else v for k, v in arrays.mass_fit.as_dict().items()},
+            location=MASS_LOCATION, n_signal_decays=truth.n_bs,
+            n_long_decays=int(long_decays(truth).sum()), n_candidates=int(arrays.masses.size),
+            fit=_fit_dict(arrays.mass_fit.as_dict()), ratio_to_reference=None,
         )
 
     report = {
@@ -655,8 +760,10 @@ def compute_report(runs: list[RunInput]) -> ReportData:
     fitters: dict[str, dict] = {}
     arrays: dict[str, FitterArrays] = {}
     run_summaries = []
+    dataset_of: dict[str, Path | None] = {}
     for index, run in enumerate(runs):
         truth = None
+        key = None
         if run.has_mc:
             key = run.dataset_path.resolve() if run.dataset_path else Path(f"<none {index}>")
             if key not in truths:
@@ -665,6 +772,7 @@ def compute_report(runs: list[RunInput]) -> ReportData:
         run_summaries.append(_run_summary(run, truth))
         for name in run.fitters:
             fitters[name], arrays[name] = _fitter_report(run, index, name, truth or _DatasetTruth("no MC truth"))
+            dataset_of[name] = key if truth is not None else None
 
     if reference is not None:
         ref = fitters[reference]
@@ -682,6 +790,8 @@ def compute_report(runs: list[RunInput]) -> ReportData:
                     }
                     for var in RESOLUTION_VARIABLES
                 }
+            if rep["mass"].get("available") and ref["mass"].get("available") and dataset_of[name] == dataset_of[reference]:
+                rep["mass"]["ratio_to_reference"] = _mass_comparison(arrays[name], arrays[reference])
             timing = rep["timing"]
             if timing["available"] and ref_timing["available"]:
                 if timing["tracks_per_s"] and ref_timing["tracks_per_s"]:
