@@ -162,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
         click.echo(str(exc), err=True)
         return 1
     except KeyboardInterrupt:
-        click.echo("pkf: interrupted; no partial output was left", err=True)
+        click.echo("pkf: interrupted; nothing that looks complete was written "
+                   "(rerun the same reconstruct command to resume it)", err=True)
         return 130
     except Exception as exc:  # an internal error: one line, the traceback on request
         if os.environ.get("PKF_DEBUG"):

@@ -56,8 +56,12 @@ def partition_files(run: Path) -> dict:
     return {p.relative_to(run).as_posix(): file_sha256(p) for p in sorted(run.glob("*/part-*.parquet"))}
 
 
-def test_partitioned_layout_and_run_json(reference):
+def test_partitioned_layout_and_run_json(dataset, reference):
+    from pkf.io.reader import open_dataset
+    from pkf.pipeline.inputs import content_hash
+
     info = json.loads((reference / "run.json").read_text())
+    assert info["input"]["content_hash"] == content_hash(open_dataset(dataset))  # what reports check
     parts = info["partitions"]
     assert [p["name"] for p in parts] == [f"part-0000-{i:05d}" for i in range(6)]
     assert sum(p["events"] for p in parts) == info["counts"]["events"] == 24
@@ -109,7 +113,7 @@ def test_unreachable_scheduler_is_one_line(dataset, tmp_path, capsys, monkeypatc
                  *ARGS])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "--scheduler" in err
-    assert not (tmp_path / "r").exists()
+    assert list(tmp_path.iterdir()) == []  # neither the run nor a staging directory
 
 
 def test_sigkill_then_rerun_gives_the_uninterrupted_output(dataset, tmp_path, capsys):

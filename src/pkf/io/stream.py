@@ -51,12 +51,15 @@ class OffsetSource(TableSource):
         return str(self.files[k]), self.bases[k] + row - self.offsets[k]
 
 
-def file_sha256(path: str | os.PathLike, block: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file's bytes, read in blocks of ``block`` bytes."""
+def file_sha256(path: str | os.PathLike, block: int = 1 << 20, also=None) -> str:
+    """Hex SHA-256 of a file's bytes, read in blocks of ``block`` bytes (also fed to the
+    hash object ``also``, if given)."""
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         while chunk := f.read(block):
             digest.update(chunk)
+            if also is not None:
+                also.update(chunk)
     return digest.hexdigest()
 
 
@@ -106,7 +109,7 @@ class TableScan:
 
 
 def scan_table(location: Path, schema: pa.Schema, name: str,
-               check: Callable[[pa.Table, OffsetSource], None] | None = None) -> TableScan:
+               check: Callable[[pa.Table, OffsetSource], None] | None = None, content_digest=None) -> TableScan:
     """Validate the table at ``location`` (a file or a directory of files) batch by batch.
 
     Args:
@@ -115,6 +118,7 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
         name: table name for messages.
         check: an extra check of each batch (e.g. hits against the geometry's layers),
             called with the batch (with the previous batch's last event in front) and its source.
+        content_digest: a hash object that is fed the bytes of every file, in order.
 
     Raises:
         InputError: one line naming the file, the column and the first bad row.
@@ -165,7 +169,7 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
         finally:
             pf.close()
         file_rows.append(total)
-        hashes.append(file_sha256(file))
+        hashes.append(file_sha256(file, also=content_digest))
     if total == 0 and spec is not None and not spec.allow_empty:
         raise InputError(f"{location}: table is empty (no rows)")
     return TableScan(name, schema, tuple(files), tuple(file_rows), np.asarray(events, dtype=np.int64),
@@ -173,14 +177,15 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
 
 
 def find_and_scan(dataset: Path, name: str, schema: pa.Schema, required: bool,
-                  check: Callable[[pa.Table, OffsetSource], None] | None = None) -> TableScan | None:
+                  check: Callable[[pa.Table, OffsetSource], None] | None = None,
+                  content_digest=None) -> TableScan | None:
     """Locate table ``name`` of a dataset directory and scan it; None if absent and not required."""
     location = find_table(dataset, name)
     if location is None:
         if required:
             raise InputError(f"{dataset}: table {name!r} not found (expected {name}.parquet or {name}/)")
         return None
-    return scan_table(location, schema, name, check)
+    return scan_table(location, schema, name, check, content_digest)
 
 
 def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None = None) -> pa.Table:

@@ -12,6 +12,7 @@ at the parent's on-disk cache before any kernel is imported (no recompilation).
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,12 +147,24 @@ def execute(tasks: Iterable[PartitionTask], workers: int, scheduler: str | None,
         _execute_local(tasks, workers, on_done)
 
 
+def _start_method() -> str:
+    """'fork' where safe (Linux, Python < 3.12): workers inherit this process's imported modules
+    and the kernels it has compiled or loaded, so they start in milliseconds; else 'spawn'
+    (each worker imports pkf and loads the kernels from numba's on-disk cache)."""
+    import multiprocessing
+
+    if sys.platform.startswith("linux") and sys.version_info < (3, 12) \
+            and "fork" in multiprocessing.get_all_start_methods():
+        return "fork"
+    return "spawn"
+
+
 def _execute_local(tasks, workers, on_done) -> None:
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     cache_dir = tasks[0].numba_cache_dir if tasks else None
-    context = multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context(_start_method())
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=context,
                              initializer=_init_worker, initargs=(cache_dir,)) as pool:
         pending = {pool.submit(run_partition, t) for t in tasks}

@@ -57,6 +57,7 @@ class DatasetPlan:
     geometry: Geometry
     tables: dict  # name -> TableScan (hits always; particles, mc_hits when present)
     partitions: tuple[Partition, ...]
+    content_hash: str = ""  # as pkf.pipeline.inputs.content_hash: SHA-256 of all table files, 16 hex digits
 
     @property
     def has_mc(self) -> bool:
@@ -69,12 +70,6 @@ class DatasetPlan:
     @property
     def n_hits(self) -> int:
         return self.tables["hits"].n_rows
-
-    def content_hash(self) -> str:
-        """16 hex digits of SHA-256 over all table files (same as :func:`pkf.pipeline.inputs.content_hash`)."""
-        from pkf.pipeline.inputs import files_content_hash
-
-        return files_content_hash([f for scan in self.tables.values() for f in scan.files])
 
 
 def _partitions(hits: TableScan, events_per_batch: int) -> list[Partition]:
@@ -132,14 +127,15 @@ def plan_dataset(path: str | Path, events_per_batch: int) -> DatasetPlan:
     def check_layers(table, source):
         validate_hit_layers(table, geometry.layer_z, geometry.layer_kind, source=source)
 
-    tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers)}
+    digest = hashlib.sha256()  # over every file, hits then particles then mc_hits (as content_hash)
+    tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers, digest)}
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
-        scan = find_and_scan(path, name, schema, False)
+        scan = find_and_scan(path, name, schema, False, content_digest=digest)
         if scan is not None:
             tables[name] = scan
     partitions = _partitions(tables["hits"], events_per_batch)
     _check_consistency(tables, partitions)
-    return DatasetPlan(path, meta, geometry, tables, tuple(partitions))
+    return DatasetPlan(path, meta, geometry, tables, tuple(partitions), digest.hexdigest()[:16])
 
 
 def with_keys(plan: DatasetPlan, run_config: dict) -> DatasetPlan:
@@ -153,4 +149,4 @@ def with_keys(plan: DatasetPlan, run_config: dict) -> DatasetPlan:
         text = common + json.dumps([p.name, p.hits_rows, p.first_event, p.last_event, p.n_events])
         parts.append(Partition(p.name, p.file_index, p.hits_rows, p.first_event, p.last_event, p.n_events,
                                hashlib.sha256(text.encode()).hexdigest()))
-    return DatasetPlan(plan.path, plan.meta, plan.geometry, plan.tables, tuple(parts))
+    return DatasetPlan(plan.path, plan.meta, plan.geometry, plan.tables, tuple(parts), plan.content_hash)

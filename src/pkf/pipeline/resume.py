@@ -82,7 +82,12 @@ class RunStaging:
         self._acquire()
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """On an error: keep the staging directory only if it holds finished partitions to resume."""
+        if exc_type is not None and self.path.is_dir():
+            journal = self.path / JOURNAL
+            if not journal.is_dir() or not any(journal.glob("*.json")):
+                shutil.rmtree(self.path, ignore_errors=True)
         self._release()
 
     def _acquire(self) -> None:
