@@ -39,10 +39,12 @@ kick on ty is odd under both. Terms such as x·tx, y²·tx², y²·ty² (tx) and
 tx·ty·y² (ty) are as large as the terms p0…p14 hold, and without them the SciFi steps were
 off by 0.4–1.7 mrad RMS in tx at 3–5 GeV (4.7 mrad for |y| > 1.5 m in the T1→T2 gap) —
 more than the step's scattering noise (0.36 mrad) — which made the parametrized momentum
-resolution 5–13% worse than the reference's at 3–10 GeV. With all monomials up to
-degree 4 the SciFi step errors are ≤ 20 µrad (T1→T2 gap, 3–4 GeV: 17 µrad in tx,
-32 µm in x). A generic list keeps the Jacobian exact (`_monomial_sum`) and old parameter
-files (15 entries) valid: absent coefficients are zero.
+resolution 5–13% worse than the reference's at 3–10 GeV (the B_s mass resolution 2%
+worse). With all monomials up to degree 4 (shipped lhcb-like set, RK4 through the map as
+truth, 3–5 GeV pions) the SciFi steps are off by 1–29 µrad RMS in tx and ≤ 1 µm in x, the
+T1→T2 gap by 95 µrad and 30 µm (tests/params/test_layer_steps.py). A generic list keeps
+the Jacobian exact (`_monomial_sum`) and old parameter files (15 entries) valid: absent
+coefficients are zero.
 
 `parametrized_noise` is paper eq. 11 with the path-length factors of Highland scattering
 and a noise floor p̃4 (DESIGN §15: Allen's failure mode for high-momentum, large-slope

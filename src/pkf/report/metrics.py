@@ -579,8 +579,8 @@ def mass_ratio_on_common_candidates(masses: np.ndarray, reference_masses: np.nda
     from a delete-one-group jackknife over the candidates (``groups`` groups by position,
     i mod groups): var = (G−1)/G·Σ(r_g − r̄)². Returns ``n_candidates``, ``fit`` and
     ``reference_fit`` (MassFit dicts), ``sigma_ratio`` (NaN unless both fits reach a
-    valid minimum), ``sigma_ratio_error`` (NaN with fewer than 2·groups·MIN_CANDIDATES
-    candidates or a failed jackknife fit), ``jackknife_groups``.
+    valid minimum), ``sigma_ratio_error`` (NaN with fewer than max(groups,
+    4·MIN_CANDIDATES) candidates or a failed jackknife fit), ``jackknife_groups``.
     """
     masses = np.asarray(masses, dtype=float)
     reference_masses = np.asarray(reference_masses, dtype=float)
@@ -591,7 +591,7 @@ def mass_ratio_on_common_candidates(masses: np.ndarray, reference_masses: np.nda
     ratio = fit.sigma / ref.sigma if fit.valid and ref.valid else float("nan")
     error = float("nan")
     n = masses.size
-    if math.isfinite(ratio) and n >= 2 * groups * MIN_CANDIDATES:
+    if math.isfinite(ratio) and n >= max(groups, 4 * MIN_CANDIDATES):
         label = np.arange(n) % groups
         values = np.array([_mass_sigma(masses[label != g]) / _mass_sigma(reference_masses[label != g])
                            for g in range(groups)])
