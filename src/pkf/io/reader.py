@@ -218,15 +218,16 @@ def _check_magic(file: Path, shown: str) -> None:
         raise InputError(f"{shown}: truncated Parquet file (no footer; was it written completely?)")
 
 
-def open_checked(file: Path, schema: pa.Schema, table_name: str) -> pq.ParquetFile:
+def open_checked(file: Path, schema: pa.Schema, table_name: str, **options) -> pq.ParquetFile:
     """Open one Parquet file after checking magic bytes, column names and dtypes (not values).
 
-    The caller closes the returned file. Raises InputError (one line naming the file).
+    ``options`` go to ``pyarrow.parquet.ParquetFile``. The caller closes the returned file.
+    Raises InputError (one line naming the file).
     """
     shown = str(file)
     _check_magic(file, shown)
     try:
-        pf = pq.ParquetFile(file)
+        pf = pq.ParquetFile(file, **options)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{shown}: corrupt or truncated Parquet file ({_one_line(exc)})") from None
     try:

@@ -132,7 +132,8 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
     carry: list[tuple[Path, int, pa.Table]] = []  # (file, file row, rows) of the last event so far
     total = 0
     for file in files:
-        pf = open_checked(file, schema, name)
+        # unbuffered reads: iter_batches on a default ParquetFile keeps growing in memory
+        pf = open_checked(file, schema, name, pre_buffer=False, buffer_size=1 << 20)
         base = 0
         try:
             batches = pf.iter_batches(batch_size=BATCH_ROWS, columns=schema.names, use_threads=True)

@@ -138,10 +138,22 @@ def plan_dataset(path: str | Path, events_per_batch: int) -> DatasetPlan:
     return DatasetPlan(path, meta, geometry, tables, tuple(partitions), digest.hexdigest()[:16])
 
 
+def _source_digest() -> str:
+    """SHA-256 of pkf's source files: a partition made by other code is not reused."""
+    import pkf
+
+    root = Path(pkf.__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def with_keys(plan: DatasetPlan, run_config: dict) -> DatasetPlan:
-    """The plan with each partition's ``key``: SHA-256 of the configuration, the input files'
-    hashes, and the partition's rows and events (what decides its output)."""
-    common = json.dumps({"config": run_config, "geometry": plan.geometry.content_hash,
+    """The plan with each partition's ``key``: SHA-256 of the configuration, pkf's source, the
+    input files' hashes, and the partition's rows and events (what decides its output)."""
+    common = json.dumps({"config": run_config, "geometry": plan.geometry.content_hash, "pkf": _source_digest(),
                          "inputs": {name: scan.sha256 for name, scan in sorted(plan.tables.items())}},
                         sort_keys=True)
     parts = []
