@@ -166,6 +166,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.run is None:
         work = args.out or Path(tempfile.mkdtemp(prefix="bs_mass_compare_"))
+        work.mkdir(parents=True, exist_ok=True)
         dataset, run = work / "dataset", work / "run"
         t0 = time.perf_counter()
         run_simulation(SimulationConfig(generator="bs2phiphi", events=args.events, seed=args.seed), dataset,
