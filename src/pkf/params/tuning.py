@@ -9,8 +9,10 @@ parameter slot (VELO pairs feed the one shared VELO set).
 Step 1 (eq. 12): the extrapolation parameters, f_tx before f_x and f_ty before f_y,
 maximising Π[G(f_s(x1) − x2_ref,s; σ) + c] per variable — here a Gaussian core of free
 width σ plus a flat outlier density c = ε/range (ε = 1%). Every extrapolation formula
-is linear in its parameters once the earlier ones are fixed, so least squares gives
-the start values and iminuit the robust maximum.
+is linear in its parameters once the earlier ones are fixed: `robust_linear_fit` works
+in an orthonormal basis of the design (the extended eq. 14 has up to 27 strongly
+correlated monomials), reaches the maximum by EM iterations from the least-squares
+start, and iminuit (analytic gradient) confirms it and gives the fit status.
 
 Step 2 (eq. 13): the noise parameters (p̃0…p̃3 and the floor p̃4, eq. 11) maximising
 Π[G2(f_d − x2_d, f_td − x2_td; Q) + c] over d ∈ {x, y} against the *true* second state.
