@@ -26,60 +26,74 @@ Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
 N(r_c; 0, S_c), then the weights are renormalised and cut.
 
-Forward and backward passes, and the smoothing choice. The forward GSF runs from the
-seed (the Kalman fitters' seed state and covariance) at the first node. The backward
-GSF is an independent filter from the last node upstream, started from a vague prior
-— diag(400 mm², 400 mm², 0.01, 0.01, (0.1·q/p)²) centred at the forward filter's
-final (collapsed) state, which only serves as the linearisation point: its weight
-against one SciFi hit is < 1e−4, against the magnet's q/p measurement ≈ 0.2 %. The
-smoothed state at node k is the product of the forward *predicted* mixture (all
-information upstream of k) and the backward *filtered* mixture (node k and everything
-downstream): every pair (i, j) gives a component with weight ∝ a_i·b_j·N(μ_i; ν_j,
-P_i + B_j) and the Gaussian product's mean and covariance; pairs below the weight cut
-are dropped and the product is reduced like any mixture. This is the GSF analogue of
-the Kalman core's weighted mean of the forward prediction and the backward filter
-(for one component it is exactly that).
+Forward and backward passes, and the smoothing. The forward GSF runs from the seed at
+the first node. The backward GSF is an independent filter from the last node upstream,
+started from a vague prior — diag(400 mm², 400 mm², 0.01, 0.01, (0.1·q/p)²) centred at
+the forward filter's final (collapsed) state. The smoothed state at node k < last is
+the product of the forward *predicted* mixture (everything upstream of k) and the
+backward *filtered* mixture (node k and everything downstream): every pair (i, j) gives
+a component with weight ∝ a_i·b_j·N(μ_i; ν_j, P_i + B_j) and the Gaussian product's
+mean and covariance; pairs below the weight cut are dropped and the product is reduced
+like any mixture — the GSF analogue of the Kalman core's weighted mean (for one
+component exactly that). At the last node the smoothed mixture *is* the forward
+filtered one, which is used as it is.
 
-The seed at the first node. The seed q/p comes from a fit of the same hits with a 10 %
-prior width: harmless for the Kalman fitters (0.2 % of the information of the magnet's
-measurement), but for an electron the q/p at the first hit is not what the magnet
-measures (bremsstrahlung in between), and a 10 % prior at the first node pulls the
-first-hit state to the "no loss" hypothesis. The forward filter keeps the seed as its
-prior (it is a good linearisation point through the magnet), but in the smoothing at
-the first node — where the forward prediction *is* the seed — its q/p width is widened
-to `seed_qop_fraction`·|q/p| (1.0: no information). Measured on one sample of 275
-lhcb-like electron tracks: with the 10 % kept there the first-hit δp/p core was 15.4 %
-instead of 12.6 %; widening the seed in the forward filter itself instead spoils the
-linearisation through the magnet (last-hit δp/p core 1.7 % instead of 0.9 %).
+Two priors that are not measurements (measured with the probability integral transform,
+PIT = CDF of the smoothed q/p mixture at the true q/p, which is uniform and whose
+Φ⁻¹-transform has unit width for a calibrated posterior; `qop_mixture_cdf`):
+- The backward prior is needed (moment form) but its q/p width is information the
+  product counts. 10 % is narrow enough to keep the backward RK4 through the magnet
+  linear (at 100 % the lhcb-like last-UT-hit δp/p core is 19 % wider), but at the last
+  node it cut off the forward mixture's bremsstrahlung tail (last-hit PIT width 1.35–1.48
+  on lhcb-like, 1.15–1.19 in the telescope with 3 % X0 planes); the forward filtered
+  mixture there has no prior at all (PIT width 0.97–1.05).
+- The seed's q/p comes from a fit of all hits, the magnet's measurement with a 10 %
+  width: used as the forward filter's prior it was counted twice, and pulled every
+  node upstream of the magnet to "no loss" (lhcb-like last-VELO-hit PIT width 1.7–1.8).
+  With bremsstrahlung modelled the forward filter therefore starts with the seed's q/p
+  width widened to `seed_qop_fraction`·|q/p| (1.0): the seed's q/p is the linearisation
+  point only (PIT width 1.05–1.06 there; δp/p at the last UT hit unchanged). Without,
+  the seed is kept as the Kalman fitters keep it (its weight against the magnet's
+  measurement is ≈ 0.2 %), so that the GSF equals the Kalman fit.
 
 Output per node (`output`):
-- "mode" (default): the peak of the smoothed mixture — the component at whose q/p the
-  mixture's q/p marginal density is highest, merged by moment matching with the
-  components not resolved from it, |μ_j − μ_m| ≤ `peak_window`·√(v_j + v_m) in q/p
-  (window 1), and that merge's covariance. The largest *weight* is a poor mode: after
-  KL merging a broad component of many large-loss hypotheses often carries the largest
-  weight (552 lhcb-like electrons: last-hit δp/p core 4.8 % instead of 1.5 %); the
-  density-mode component alone has a covariance that ignores the unresolved small
-  losses around it (last-hit q/p pull core 1.7–3.0 on five samples), the peak's
-  1.0–1.5.
+- "core" (default): the Gaussian core of the smoothed q/p marginal — three passes of
+  moment matching within ±3σ (`_core`), the fit `pkf.report.gauss` makes of a sample,
+  started from the peak below — with x, y, tx, ty from the mixture conditional on q/p
+  at the core's centre. A calibrated posterior then has q/p pulls whose core width is 1
+  by construction; the other outputs summarise a skewed posterior by a width the pull
+  core does not measure (telescope with 3 % X0 planes in 2 T, first hit: pull cores
+  core 0.96–1.06, mode 1.15–1.23, mean 0.66–0.71, max-weight 0.58–0.66, on the same
+  calibrated posteriors, PIT width 0.96–1.06).
+- "mode": the peak — the component at whose q/p the q/p marginal density is highest,
+  merged by moment matching with the components not resolved from it (|μ_j − μ_m| ≤
+  `peak_window`·√(v_j + v_m) in q/p, window 1).
 - "max-weight": ACTS' choice: the largest-weight component's mean, with the mixture's
   covariance about it.
 - "mean": the mixture's mean and full covariance (moment matching).
 χ² is the sum over nodes of the forward filter's predicted-residual χ² of the collapsed
 predicted mixture (for one component: the Kalman fitters' χ²), ndf = Σ measurement
-dimensions − 5. Outliers are removed as in the Kalman core, by each node's
-standardised χ² of the output state (where a mixture covariance exceeds the measurement
-variance, standardised by the measurement variance alone).
+dimensions − 5. Outliers are removed by the Kalman core's rule (`find_outlier`), by each
+node's standardised χ² of the output state (where a mixture covariance exceeds the
+measurement variance, standardised by the measurement variance alone).
 
-What a GSF can and cannot do here (measured, see the issue-7 note): in the lhcb-like
-spectrometer the momentum is measured in the magnet between UT and SciFi; there is
-hardly any field between the VELO and the UT, so the bremsstrahlung between the first
-hit and the magnet (≈ 0.2–0.3 X0) is not observable and the first-hit electron q/p
-is not measured by any fit (in bins of the true loss between first hit and UT, the
-GSF mode's median p_fit/p_true is within 0.5–2 % of the Kalman fit's up to 50 % loss). The GSF gains at the last hit (SciFi brems partly seen through the
-residual field: central 68 % of last-hit δp/p 21–25 % narrower, q/p pulls calibrated)
-and in the tails everywhere; in the homogeneous-field telescope it cuts the RMS of δp/p
-by 40 % with calibrated pulls. Gaussian cores stay those of the non-radiating majority.
+What a GSF can and cannot do (measured, issue 7): a GSF narrows the Gaussian *core* of
+δp/p only where the momentum is measured across material in which most electrons
+radiate more than the resolution. Telescope, 10 pixel planes over 1 m: 3 % X0 planes in
+2 T (an ATLAS-like budget, 0.3 X0) core −32…−40 % at the first hit with q/p pull cores
+0.96–1.06; 3 % in 1 T −12…−25 %; the built-in 1 % planes in 1 T ±4 % (half the
+electrons lose less than the 2 % resolution there, and for them the Kalman fit is
+already optimal) while the RMS drops by 40 %. In the lhcb-like spectrometer the
+momentum is measured in the magnet, which holds no material: at the last UT hit (the
+state the magnet measures) GSF and Kalman fit agree (core ratio 0.92–1.02, both
+calibrated); the bremsstrahlung between the first hit and the magnet (≈ 0.25 X0, almost
+no field) is not observable, so no fit measures the first-hit q/p; downstream, the
+SciFi radiation (0.12 X0) is seen only through the fringe field: the last-hit central
+68 % is 17–26 % narrower than the Kalman fit's with calibrated pulls, but its Gaussian
+core is wider (the Kalman fit's narrow core there is the no-radiation hypothesis, right
+for the ~45 % who do not radiate, with q/p pulls 4.4–5.8). Just downstream of the
+magnet (first SciFi hit) the posterior is too wide (PIT width 0.6; 0.4/0.54/0.72 with
+4/8/16 components: the KL reduction of the 12 × 12 product merges distinct hypotheses).
 
 Cost. Each component's mean is transported by RK4; by default (`share_jacobians`) the
 RK4 Jacobian is integrated only for the largest-weight component and applied to every
@@ -137,17 +151,22 @@ from pkf.params.bethe_heitler import (
 from pkf.physics.transport import rk4_propagate_jacobian, rk4_propagate_scalar
 from pkf.simulation.species import MASS_ELECTRON
 
+OUTPUT_CORE = 3
 OUTPUT_MODE = 0
 OUTPUT_MEAN = 1
 OUTPUT_MAX_WEIGHT = 2
-OUTPUTS = {"mode": OUTPUT_MODE, "mean": OUTPUT_MEAN, "max-weight": OUTPUT_MAX_WEIGHT}
+OUTPUTS = {"core": OUTPUT_CORE, "mode": OUTPUT_MODE, "mean": OUTPUT_MEAN, "max-weight": OUTPUT_MAX_WEIGHT}
+#: Variance of a unit Gaussian truncated to ±3σ: the "core" output's window (as `pkf.report.gauss`).
+_CORE_WINDOW = 3.0
+_CORE_TRUNCATED_VARIANCE = 1.0 - 2.0 * _CORE_WINDOW * math.exp(-0.5 * _CORE_WINDOW**2) / math.sqrt(
+    2.0 * math.pi) / math.erf(_CORE_WINDOW / math.sqrt(2.0))
 #: ACTS defaults (DESIGN §15).
 MAX_COMPONENTS = 12
 WEIGHT_CUT = 1e-4
 #: Vague prior of the backward filter (see the module docstring).
 BACKWARD_PRIOR_VARIANCES = (400.0, 400.0, 0.01, 0.01)
 BACKWARD_PRIOR_QOP_FRACTION = 0.1
-#: In the smoothing at the first node the seed's q/p width is at least this fraction of |q/p|.
+#: The forward filter's seed has a q/p width of at least this fraction of |q/p| (module docstring).
 SEED_QOP_FRACTION = 1.0
 #: "mode" output: components within this many σ (in q/p) of the mode component form the peak.
 PEAK_WINDOW = 1.0
@@ -172,14 +191,15 @@ class GsfExtrapolator(NamedTuple):
     peak_window: float
 
 
-def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, weight_cut: float = WEIGHT_CUT, output: str = "mode", bethe_heitler: bool | None = None,
-                     share_jacobians: bool = True, mixture: BetheHeitlerMixture | None = None,
-                     seed_qop_fraction: float = SEED_QOP_FRACTION, peak_window: float = PEAK_WINDOW,
-                     field=None) -> GsfExtrapolator:
+def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, weight_cut: float = WEIGHT_CUT, output: str = "core",
+                     bethe_heitler: bool | None = None, share_jacobians: bool = True,
+                     mixture: BetheHeitlerMixture | None = None, seed_qop_fraction: float = SEED_QOP_FRACTION,
+                     peak_window: float = PEAK_WINDOW, field=None) -> GsfExtrapolator:
     """The GSF context for `geometry`: mass hypothesis [MeV] (bremsstrahlung modelled by
-    default only for the electron mass), the weight cut, the output ("mode", "max-weight" or "mean"), Jacobian sharing, the Bethe–Heitler mixture
-    (the shipped one by default), the seed's q/p width in the first node's smoothing and
-    the "mode" output's peak window (see the module docstring). The largest number of
+    default only for the electron mass), the weight cut, the output ("core", "mode",
+    "max-weight" or "mean"), Jacobian sharing, the Bethe–Heitler mixture
+    (the shipped one by default), the least q/p width of the forward filter's seed (as a
+    fraction of |q/p|) and the "mode" output's peak window (see the module docstring). The largest number of
     components is a fit option (`FitOptions.max_components`, `--max-components`), set by
     `fit_batch_gsf`; the context carries the default, MAX_COMPONENTS."""
     if output not in OUTPUTS:
@@ -197,9 +217,10 @@ def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, weight_cut: float = 
 @dataclass
 class GsfResult(FitResult):
     """`FitResult` plus, per track, the number of components of the smoothed mixture at
-    the first hit (after reduction)."""
+    the first hit (after reduction), and, if kept, every node's smoothed q/p mixture."""
 
     n_components: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    qop_mixture: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
 
 
 # ----------------------------------------------------------------------------------
@@ -415,6 +436,86 @@ def _mode_component(w, mu, cov, n):
     return best
 
 
+@nb.njit(cache=True)
+def _core(w, mu, cov, n, q, var, out_mean, out_cov):
+    """Output "core": the Gaussian core of the mixture's q/p marginal f and the other
+    parameters given q/p at its centre (see the module docstring).
+
+    Core: three passes of moment matching within q ± 3σ, starting from (q, var) [1/MeV,
+    1/MeV²] — window mass M0 = Σ_c w_c·(Φ(b_c) − Φ(a_c)) and first two moments of f there
+    (a_c, b_c the window edges in component c's σ), then q ← mean, σ² ← variance / 0.9733
+    (the variance of a ±3σ-truncated Gaussian), the fit `pkf.report.gauss` makes of a
+    sample. The others: responsibilities r_c ∝ w_c·N(q; μ_c, v_c); conditional means
+    m_c = μ_c + P_c[:, 4]/v_c·(q − μ_c) and covariances P_c − P_c[:, 4]P_c[4, :]/v_c,
+    slopes β = Σ r_c P_c[:, 4]/v_c; output x = Σ r_c m_c, C_xx = Σ r_c (conditional
+    covariance + (m_c − x)(m_c − x)ᵀ) + ββᵀσ², C_xq = βσ², C_qq = σ². One component:
+    exactly that component."""
+    if n == 1:
+        copy5(mu[0], out_mean)
+        copy55(cov[0], out_cov)
+        return
+    inv_sqrt_2pi = 1.0 / math.sqrt(2.0 * math.pi)
+    for _ in range(3):
+        sig = math.sqrt(var)
+        m0 = 0.0
+        m1 = 0.0
+        m2 = 0.0
+        for c in range(n):
+            sc = math.sqrt(cov[c, 4, 4])
+            u = mu[c, 4] - q
+            a = (-_CORE_WINDOW * sig - u) / sc
+            b = (_CORE_WINDOW * sig - u) / sc
+            e0 = 0.5 * (math.erfc(-b / math.sqrt(2.0)) - math.erfc(-a / math.sqrt(2.0)))
+            pa = math.exp(-0.5 * a * a) * inv_sqrt_2pi
+            pb = math.exp(-0.5 * b * b) * inv_sqrt_2pi
+            e1 = pa - pb  # window moments of a unit Gaussian: ∫z φ, ∫z² φ = e0 + a·pa − b·pb
+            e2 = e0 + a * pa - b * pb
+            m0 += w[c] * e0
+            m1 += w[c] * (u * e0 + sc * e1)
+            m2 += w[c] * (u * u * e0 + 2.0 * u * sc * e1 + sc * sc * e2)
+        if not m0 > 0.0:
+            break
+        d = m1 / m0
+        v = m2 / m0 - d * d
+        if not v > 0.0:
+            break
+        q += d
+        var = v / _CORE_TRUNCATED_VARIANCE
+    total = 0.0
+    for c in range(n):
+        d = q - mu[c, 4]
+        total += w[c] * math.exp(-0.5 * d * d / cov[c, 4, 4]) / math.sqrt(cov[c, 4, 4])
+    for i in range(5):
+        out_mean[i] = 0.0
+        for j in range(5):
+            out_cov[i, j] = 0.0
+    beta = out_cov[4]  # row 4 holds β until the end
+    for c in range(n):
+        vc = cov[c, 4, 4]
+        d = q - mu[c, 4]
+        r = w[c] * math.exp(-0.5 * d * d / vc) / math.sqrt(vc) / total
+        for i in range(4):
+            out_mean[i] += r * (mu[c, i] + cov[c, i, 4] / vc * d)
+            beta[i] += r * cov[c, i, 4] / vc
+    for c in range(n):
+        vc = cov[c, 4, 4]
+        d = q - mu[c, 4]
+        r = w[c] * math.exp(-0.5 * d * d / vc) / math.sqrt(vc) / total
+        for i in range(4):
+            di = mu[c, i] + cov[c, i, 4] / vc * d - out_mean[i]
+            for j in range(4):
+                dj = mu[c, j] + cov[c, j, 4] / vc * d - out_mean[j]
+                out_cov[i, j] += r * (cov[c, i, j] - cov[c, i, 4] * cov[c, j, 4] / vc + di * dj)
+    for i in range(4):
+        for j in range(4):
+            out_cov[i, j] += beta[i] * beta[j] * var
+    for i in range(4):
+        out_cov[i, 4] = beta[i] * var
+        out_cov[4, i] = beta[i] * var
+    out_cov[4, 4] = var
+    out_mean[4] = q
+
+
 # ----------------------------------------------------------------------------------
 # Transport, material, update
 # ----------------------------------------------------------------------------------
@@ -609,9 +710,9 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
 @nb.njit(cache=True)
 def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, nearest_d, alive,
              out_mean, out_cov, scratch, vec):
-    """Product of the forward-predicted and backward-filtered mixtures at a node, reduced;
-    writes the output state (mode or mean). Returns the product's component count (0 on
-    failure)."""
+    """Product of the forward-predicted and backward-filtered mixtures at a node into
+    (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
+    component count (0 on failure)."""
     ssum = scratch[0]
     sinv = scratch[1]
     lu = scratch[2]
@@ -671,19 +772,37 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
         return 0
     for c in range(n):
         pw[c] = math.exp(pw[c] - largest)
-    n = _normalise_and_cut(pw, pmu, pcov, n, ctx.weight_cut)
-    n = _reduce(pw, pmu, pcov, n, ctx.max_components, nearest, nearest_d, alive)
+    return _summarise(ctx, pw, pmu, pcov, n, nearest, nearest_d, alive, out_mean, out_cov)
+
+
+@nb.njit(cache=True)
+def _summarise(ctx, w, mu, cov, n, nearest, nearest_d, alive, out_mean, out_cov):
+    """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
+    its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
+    n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut)
+    n = _reduce(w, mu, cov, n, ctx.max_components, nearest, nearest_d, alive)
     if ctx.output == OUTPUT_MEAN:
-        _collapse(pw, pmu, pcov, n, out_mean, out_cov)
+        _collapse(w, mu, cov, n, out_mean, out_cov)
+    elif ctx.output == OUTPUT_MAX_WEIGHT:
+        copy5(mu[_largest(w, n)], out_mean)
+        _second_moment(w, mu, cov, n, out_mean, out_cov)
     else:
-        if ctx.output == OUTPUT_MAX_WEIGHT:
-            best = _largest(pw, n)
-            copy5(pmu[best], out_mean)
-            _second_moment(pw, pmu, pcov, n, out_mean, out_cov)
-        else:
-            best = _mode_component(pw, pmu, pcov, n)
-            _peak(pw, pmu, pcov, n, best, ctx.peak_window, out_mean, out_cov)
+        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n), ctx.peak_window, out_mean, out_cov)
+        if ctx.output == OUTPUT_CORE:
+            _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov)
     return n
+
+
+@nb.njit(cache=True, inline="always")
+def _keep_qop_mixture(w, mu, cov, n, out):
+    """Store the q/p marginal (weight, mean [1/MeV], variance) of (w, mu, cov)[:n] in out
+    (K, 3) when out has rows (K ≥ n), padding with zero weights."""
+    if out.shape[0] == 0:
+        return
+    for c in range(out.shape[0]):
+        out[c, 0] = w[c] if c < n else 0.0
+        out[c, 1] = mu[c, 4] if c < n else 0.0
+        out[c, 2] = cov[c, 4, 4] if c < n else 1.0
 
 
 # ----------------------------------------------------------------------------------
@@ -693,8 +812,9 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
 
 @nb.njit(cache=True)
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
-               buf, pbuf, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov):
-    """Forward GSF, backward GSF and smoothing of one track. Returns (status, χ², number of
+               buf, pbuf, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix):
+    """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
+    marginals into out_mix (nodes, K, 3) if it has rows. Returns (status, χ², number of
     components of the smoothed mixture at the first node)."""
     n = z.size
     w, mu, cov = buf[0], buf[1], buf[2]
@@ -702,10 +822,18 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     mean = vec[15:20]
     cmat = scratch[5]
     chi2 = 0.0
-    # ---- forward filter
+    keep = out_mix.shape[0] > 0
+    # ---- forward filter from the seed; with bremsstrahlung its q/p width at least
+    # seed_qop_fraction·|q/p| (without, the GSF is the Kalman fit with the same prior)
     w[0] = 1.0
     copy5(seed, mu[0])
     copy55(seed_cov, cov[0])
+    wide = (ctx.seed_qop_fraction * seed[4]) ** 2
+    if ctx.bethe_heitler and wide > cov[0, 4, 4]:
+        scale = math.sqrt(wide / cov[0, 4, 4])
+        for i in range(5):
+            cov[0, 4, i] *= scale
+            cov[0, i, 4] *= scale
     nc = 1
     for k in range(n):
         if k > 0:
@@ -715,15 +843,6 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
         fwd_n[k] = nc
         for c in range(nc):
             _copy_component(w, mu, cov, c, fwd_w[k], fwd_mu[k], fwd_cov[k], c)
-        if k == 0:
-            # in the smoothing, the seed enters with a q/p width of at least
-            # seed_qop_fraction·|q/p| (see the module docstring)
-            wide = (ctx.seed_qop_fraction * seed[4]) ** 2
-            if wide > fwd_cov[0, 0, 4, 4]:
-                scale = math.sqrt(wide / fwd_cov[0, 0, 4, 4])
-                for i in range(5):
-                    fwd_cov[0, 0, 4, i] *= scale
-                    fwd_cov[0, 0, i, 4] *= scale
         if active[k]:
             inc = _predicted_chi2(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], mean, cmat)
             if inc < 0.0:
@@ -732,6 +851,12 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             nc = _update(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], ctx.weight_cut)
             if nc == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+    # ---- the last node: the forward filtered mixture is the smoothed one
+    for c in range(nc):
+        _copy_component(w, mu, cov, c, pw, pmu, pcov, c)
+    n_last = _summarise(ctx, pw, pmu, pcov, nc, nearest, nearest_d, alive, out_state[n - 1], out_cov[n - 1])
+    if keep:
+        _keep_qop_mixture(pw, pmu, pcov, n_last, out_mix[n - 1])
     # ---- backward filter from a vague prior at the forward filter's final state
     _collapse(w, mu, cov, nc, mean, cmat)
     w[0] = 1.0
@@ -745,7 +870,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     if not cov[0, 4, 4] > 0.0:
         cov[0, 4, 4] = seed_cov[4, 4]
     nc = 1
-    n_first = 0
+    n_first = n_last
     for k in range(n - 1, -1, -1):
         if k < n - 1:
             nc = _propagate(ctx, -1.0, z[k + 1], z[k], buf, nc, nearest, nearest_d, alive, scratch, bh)
@@ -755,22 +880,27 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             nc = _update(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], ctx.weight_cut)
             if nc == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
-        n_prod = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
-                          nearest, nearest_d, alive, out_state[k], out_cov[k], scratch, vec)
-        if n_prod == 0:
-            return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+        if k < n - 1:
+            n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
+                               nearest, nearest_d, alive, out_state[k], out_cov[k], scratch, vec)
+            if n_first == 0:
+                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+            if keep:
+                _keep_qop_mixture(pw, pmu, pcov, n_first, out_mix[k])
         for i in range(5):
             if not (out_cov[k, i, i] > 0.0 and math.isfinite(out_state[k, i])):
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
-        n_first = n_prod
     return STATUS_OK, chi2, n_first
 
 
 @nb.njit(cache=True)
 def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
                    outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status,
-                   out_chi2, out_ndf, out_n_outliers, out_n_components):
-    """GSF of a batch of tracks (CSR nodes as `pkf.fit.kalman.fit_tracks`) with context ctx."""
+                   out_chi2, out_ndf, out_n_outliers, out_n_components, out_qop_mixture):
+    """GSF of a batch of tracks (CSR nodes as `pkf.fit.kalman.fit_tracks`) with context ctx;
+    out_qop_mixture (nodes, max_components, 3) receives each node's smoothed q/p marginal
+    mixture, or has no rows (not kept)."""
+    keep = out_qop_mixture.shape[0] > 0
     n_tracks = offsets.size - 1
     max_nodes = 1
     for t in range(n_tracks):
@@ -816,7 +946,8 @@ def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, 
             status, chi2, n_comp = _fit_track(
                 ctx, node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi], node_m[lo:hi],
                 node_sigma[lo:hi], active, seeds[t], seed_covs[t], fwd_w, fwd_mu, fwd_cov, fwd_n, buf, pbuf,
-                nearest, nearest_d, alive, scratch, bh, vec, out_state[lo:hi], out_cov[lo:hi])
+                nearest, nearest_d, alive, scratch, bh, vec, out_state[lo:hi], out_cov[lo:hi],
+                out_qop_mixture[lo:hi] if keep else out_qop_mixture)
             if status != STATUS_OK:
                 break
             # outliers: the Kalman core's rule; a mixture's covariance ("mean", "max-weight"
@@ -840,19 +971,31 @@ def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, 
 
 
 def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray,
-                  beamline_extrapolator=None) -> GsfResult:
+                  beamline_extrapolator=None, keep_qop_mixtures: bool = False) -> GsfResult:
     """GSF of every track of `batch` (a `TrackBatch`) with the context `extrapolator`
     (`gsf_extrapolator`), from the Kalman fitters' seeds and seed covariances.
     `options` (`FitOptions`): the outlier cut, maximum number of outliers and the largest
-    number of mixture components (≥ 1)."""
+    number of mixture components (≥ 1). With `keep_qop_mixtures`, `result.qop_mixture`
+    (nodes, max_components, 3) holds every node's smoothed q/p marginal (weight, mean
+    [1/MeV], variance [1/MeV²]; `qop_mixture_cdf` evaluates it)."""
     if options.max_components < 1:
         raise ValueError(f"max_components must be >= 1, not {options.max_components}")
     ctx = extrapolator._replace(max_components=int(options.max_components))
-    result = GsfResult.empty(batch, n_components=np.zeros(batch.n_tracks, dtype=np.int64))
+    result = GsfResult.empty(batch, n_components=np.zeros(batch.n_tracks, dtype=np.int64),
+                             qop_mixture=np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)))
     gsf_fit_tracks(ctx, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
                    np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
                    options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
                    result.node_chi2, result.node_active, result.status, result.chi2, result.ndf,
-                   result.n_outliers, result.n_components)
+                   result.n_outliers, result.n_components, result.qop_mixture)
     fit_locations(result, batch, beamline_extrapolator)
     return result
+
+
+def qop_mixture_cdf(mixture: np.ndarray, qop: np.ndarray) -> np.ndarray:
+    """CDF of q/p mixtures (n, K, 3) (`GsfResult.qop_mixture` rows) at qop (n) [1/MeV]: the
+    probability integral transform, uniform in [0, 1] for a calibrated posterior."""
+    from scipy.special import ndtr
+
+    w, mean, var = mixture[..., 0], mixture[..., 1], mixture[..., 2]
+    return np.sum(w * ndtr((np.asarray(qop)[:, None] - mean) / np.sqrt(var)), axis=1) / np.sum(w, axis=1)
