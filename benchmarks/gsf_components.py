@@ -9,6 +9,10 @@
    difference the Jacobian sharing makes (RMS of the state difference in σ).
 2. GX2F: a pion gun (2–100 GeV), long tracks: time per track of the parametrized and
    reference Kalman fitters and of the GX2F, and the GX2F's mean Gauss–Newton updates.
+3. Passes of the reference Kalman fitter (`pkf.fit.fitters.REFERENCE_ITERATIONS`): a
+   2–5 GeV pion gun, long tracks, fitted with 1, 2 and 3 passes and by the GX2F: the
+   first-hit q/p difference from the GX2F's χ² minimum (RMS and max, in σ), the δp/p
+   Gaussian core per momentum bin, the q/p pull core and the time per track.
 
 Prints tables and writes JSON:
 
@@ -89,14 +93,15 @@ def main() -> None:
     kalman = fit_batch(electrons.extrapolator, batch, options, seeds, covs, electrons.beamline)
     wall_kalman, kalman = best_of(args.repeat, lambda: fit_batch(electrons.extrapolator, batch, options, seeds,
                                                                  covs, electrons.beamline))
-    configs = [(f"gsf-{m}", {"max_components": m}) for m in COMPONENTS]
-    configs.append(("gsf-12-own-jacobians", {"max_components": 12, "share_jacobians": False}))
+    configs = [(f"gsf-{m}", {}, m) for m in COMPONENTS]
+    configs.append(("gsf-12-own-jacobians", {"share_jacobians": False}, 12))
     fits = {}
-    for name, kw in configs:
+    for name, kw, m in configs:
         ctx = gsf_extrapolator(geometry, **kw)
-        fit_batch_gsf(ctx, warm, options, seeds[:3], covs[:3], electrons.beamline)
-        wall, fits[name] = best_of(args.repeat, lambda ctx=ctx: fit_batch_gsf(ctx, batch, options, seeds, covs,
-                                                                              electrons.beamline))
+        opts = FitOptions(max_components=m)
+        fit_batch_gsf(ctx, warm, opts, seeds[:3], covs[:3], electrons.beamline)
+        wall, fits[name] = best_of(args.repeat, lambda ctx=ctx, opts=opts: fit_batch_gsf(ctx, batch, opts, seeds, covs,
+                                                                                         electrons.beamline))
         results["gsf"][name] = {"tracks": int(batch.n_tracks), "ms_per_track": 1e3 * wall / batch.n_tracks,
                                 "mean_components_first_hit": float(fits[name].n_components.mean())}
     ok = kalman.status == 0
@@ -143,6 +148,40 @@ def main() -> None:
     for name in runs:
         results["gx2f"][name]["cost_vs_reference"] = results["gx2f"][name]["ms_per_track"] / ref
 
+    # ---- 3. passes of the reference fitter at low momentum (pions)
+    slow = TruthSample(geometry, events=args.events, seed=205, particles=10, p_min=2000.0, p_max=5000.0,
+                       eta_min=2.0, eta_max=5.0)
+    long = np.flatnonzero(slow.long_tracks())
+    batch = subset(slow.batch, long)
+    seeds, covs = slow.seeds[long], slow.seed_covs[long]
+    warm = subset(batch, np.arange(3))
+    passes = {f"reference-{i}": (fit_batch, FitOptions(iterations=i)) for i in (1, 2, 3)}
+    passes["gx2f"] = (fit_batch_gx2f, options)
+    fits = {}
+    walls = {}
+    for name, (fit, opts) in passes.items():
+        fit(slow.extrapolator, warm, opts, seeds[:3], covs[:3], slow.beamline)
+        walls[name], fits[name] = best_of(args.repeat, lambda fit=fit, opts=opts: fit(
+            slow.extrapolator, batch, opts, seeds, covs, slow.beamline))
+    ok = np.all([r.status == 0 for r in fits.values()], axis=0)
+    truth = slow.truth[batch.hit_row[batch.offsets[:-1]]][ok]
+    p_true = 1.0 / np.abs(truth[:, 4])
+    _, s_min, _ = fits["gx2f"].locations["first_hit"]
+    bins = ((2000, 2500), (2500, 3000), (3000, 4000), (4000, 5000))
+    results["passes"] = {}
+    for name, r in fits.items():
+        _, state, cov = r.locations["first_hit"]
+        sigma = np.sqrt(cov[ok, 4, 4])
+        d = (state[ok, 4] - s_min[ok, 4]) / sigma
+        dpp = np.abs(truth[:, 4]) / np.abs(state[ok, 4]) - 1.0
+        results["passes"][name] = {
+            "tracks": int(ok.sum()), "ms_per_track": 1e3 * walls[name] / batch.n_tracks,
+            "cost_vs_one_pass": walls[name] / walls["reference-1"],
+            "qop_minus_gx2f_rms_sigma": float(np.sqrt(np.mean(d**2))), "qop_minus_gx2f_max_sigma": float(np.abs(d).max()),
+            "qop_pull_core": gaussian_core((state[ok, 4] - truth[:, 4]) / sigma).sigma,
+            "dp_over_p_core": {f"{lo / 1000:g}-{hi / 1000:g} GeV": gaussian_core(dpp[(p_true >= lo) & (p_true < hi)]).sigma
+                               for lo, hi in bins}}
+
     # ---- tables
     g = results["gsf"]
     print(f"GSF on lhcb-like electrons (2–50 GeV, long tracks, {g['gsf-12']['tracks']} tracks)")
@@ -166,6 +205,15 @@ def main() -> None:
         print(f"{name:<24}{r['ms_per_track']:>9.3f}{r['ns_per_node']:>9.0f}{r['cost_vs_reference']:>12.2f}")
     print(f"GX2F: mean Gauss–Newton updates {x['gx2f']['mean_updates']:.2f}, "
           f"converged {100 * x['gx2f']['converged_fraction']:.2f}%")
+    x = results["passes"]
+    print()
+    print(f"Reference Kalman passes vs the GX2F on lhcb-like pions 2–5 GeV ({x['gx2f']['tracks']} long tracks)")
+    print(f"{'fit':<14}{'ms/track':>9}{'×1 pass':>8}{'Δq/p vs GX2F rms, max [σ]':>28}{'q/p pull':>9}   δp/p core [%] "
+          + " ".join(next(iter(x.values()))["dp_over_p_core"]))
+    for name, r in x.items():
+        print(f"{name:<14}{r['ms_per_track']:>9.3f}{r['cost_vs_one_pass']:>8.2f}"
+              f"{r['qop_minus_gx2f_rms_sigma']:>20.3f}, {r['qop_minus_gx2f_max_sigma']:6.2f}{r['qop_pull_core']:>9.3f}   "
+              + " ".join(f"{100 * v:.3f}" for v in r["dp_over_p_core"].values()))
     if args.json:
         args.json.write_text(json.dumps(results, indent=2) + "\n")
 

@@ -38,13 +38,13 @@ class Fitter:
 
 #: Passes of the reference Kalman fitter by default. One pass linearises the RK4 transport
 #: through the magnet at the seed's q/p; for 2–5 GeV tracks whose seed is 5–15 % off that
-#: is not the χ² minimum. Measured on lhcb-like π⁻ guns (2 × 1400 long tracks, 2–5 GeV,
-#: `python benchmarks/gsf_components.py`): with 2 passes the first-hit q/p moves from
-#: 1.0σ RMS (max 15–21σ) to 0.02–0.05σ RMS from the GX2F's χ² minimum, the δp/p core at
-#: 2–2.5 GeV narrows from 0.27 % to 0.18 %, and the q/p pull core from 1.15–1.17 to
-#: 1.01–1.05; a third pass changes nothing (≤ 0.03σ). Cost: ×1.7–2.1 the reference fit's
-#: time (still ≈ ½ of the GX2F's). The parametrized fitter keeps 1 pass (its steps do
-#: not depend on a linearisation through the field map; 2 passes cost ×1.7 for ≤ 0.02 %).
+#: is not the χ² minimum. Measured on lhcb-like π gun long tracks, 2–5 GeV (three samples
+#: of 940–1400; `python benchmarks/gsf_components.py`, section 3): with 2 passes the
+#: first-hit q/p moves from 1.0–1.06σ RMS (max 15–21σ) to 0.02–0.05σ RMS from the GX2F's
+#: χ² minimum, the δp/p core at 2–2.5 GeV narrows from 0.27 % to 0.17–0.18 %, and the q/p
+#: pull core from 1.15–1.17 to 1.01–1.05; a third pass changes nothing (≤ 0.03σ). Cost:
+#: ×1.7–2.1 the reference fit's time (½ of the GX2F's). The parametrized fitter keeps 1
+#: pass: 2 cost it ×1.7 and move its δp/p cores by ≤ 0.02 percentage points.
 REFERENCE_ITERATIONS = 2
 
 
