@@ -175,8 +175,22 @@ def _mass(summary: dict) -> str:
                      _pm(fit["n_background"], fit["n_background_error"], ".1f"), _esc(fit["status"])])
     if not rows:
         return ""
-    return _table(["fitter", "state", "B<sub>s</sub> decays", "candidates", "in window", "mean [MeV]", "σ [MeV]",
+    html = _table(["fitter", "state", "B<sub>s</sub> decays", "candidates", "in window", "mean [MeV]", "σ [MeV]",
                    "N<sub>sig</sub>", "N<sub>bkg</sub>", "fit status"], rows, left=2)
+    ratios = []
+    for name, rep in summary["fitters"].items():
+        cmp_ = rep["mass"].get("ratio_to_reference")
+        if not cmp_ or cmp_.get("fit") is None or cmp_.get("reference_fit") is None:
+            continue
+        ratios.append([_esc(name), _num(cmp_["n_candidates"]),
+                       _pm(cmp_["fit"]["sigma"], cmp_["fit"]["sigma_error"], ".2f"),
+                       _pm(cmp_["reference_fit"]["sigma"], cmp_["reference_fit"]["sigma_error"], ".2f"),
+                       _pm(cmp_["sigma_ratio"], cmp_["sigma_ratio_error"], ".3f")])
+    if ratios:
+        html += ("<h3>σ on the common candidates (the same decays and kaons for both fitters; "
+                 "error: jackknife)</h3>" + _table(["fitter", "common candidates", "σ [MeV]", "σ reference [MeV]",
+                                                     "σ / σ reference"], ratios, left=1))
+    return html
 
 
 def _efficiency(summary: dict) -> str:
