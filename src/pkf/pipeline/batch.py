@@ -71,7 +71,7 @@ class ReconstructionContext:
     pattern_ext: object
     beamline_ext: object
     field_map: object
-    fit_options: FitOptions
+    fit_options: dict  # fitter name → FitOptions
     warmed: bool = field(default=False)
 
 
@@ -93,8 +93,9 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
                          if config.pattern == "triplet" else None),
             beamline_ext=straight_line_extrapolator(geometry),
             field_map=geometry.reconstruction_field(),
-            fit_options=FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
-                                   iterations=config.iterations, max_components=config.max_components),
+            fit_options={f.name: FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
+                                            iterations=config.iterations or f.iterations,
+                                            max_components=config.max_components) for f in fitters},
         )
     return _CONTEXTS[key]
 
@@ -119,7 +120,7 @@ def _warm_up(fitters_ext, batch: TrackBatch, seeds, covs, options, beamline_ext)
     small = TrackBatch(batch.offsets[: n + 1], batch.z[:end], batch.layer[:end], batch.hit_row[:end],
                        batch.n_meas[:end], batch.hx[:end], batch.hy[:end], batch.m[:end], batch.sigma[:end])
     for fitter, ext in fitters_ext:
-        fitter.fit(ext, small, options, seeds[:n], covs[:n], beamline_ext)
+        fitter.fit(ext, small, options[fitter.name], seeds[:n], covs[:n], beamline_ext)
 
 
 #: Momentum bins [MeV] of the efficiencies in run.json (DESIGN §10; issue 5's targets are
@@ -231,7 +232,7 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         ctx.warmed = True
     for fitter, ext in ctx.fitters_ext:
         with _Clock(timing, f"fit.{fitter.name}") as clock:
-            result = fitter.fit(ext, batch, ctx.fit_options, seeds, seed_covs, ctx.beamline_ext)
+            result = fitter.fit(ext, batch, ctx.fit_options[fitter.name], seeds, seed_covs, ctx.beamline_ext)
         stats = summary["fit"][fitter.name]
         stats["wall_s"] += clock.elapsed
         stats["tracks"] += n_tracks

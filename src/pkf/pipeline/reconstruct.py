@@ -45,7 +45,7 @@ class ReconstructionConfig:
     params: str | None = None
     outlier_chi2: float = 9.0
     max_outliers: int = 2
-    iterations: int = 1
+    iterations: int | None = None  # None: each fitter's own (Fitter.iterations)
     max_components: int = 12
 
     def validate(self) -> list[Fitter]:
@@ -55,7 +55,7 @@ class ReconstructionConfig:
             raise InputError(f"--outlier-chi2: must be > 0, not {self.outlier_chi2}")
         if self.max_outliers < 0:
             raise InputError(f"--max-outliers: must be >= 0, not {self.max_outliers}")
-        if self.iterations < 1:
+        if self.iterations is not None and self.iterations < 1:
             raise InputError(f"--iterations: must be >= 1, not {self.iterations}")
         if len(set(self.fitters)) != len(self.fitters):
             raise InputError("--fitter: a fitter is given twice")
@@ -113,7 +113,9 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
         check_output_dir(out, overwrite)
     plan = plan_dataset(dataset_path, events_per_batch)
     _check_config_against(plan, config)
-    run_config = asdict(config) | {"events_per_batch": events_per_batch}
+    run_config = asdict(config) | {"events_per_batch": events_per_batch,
+                                   "fit_iterations": {f.name: config.iterations or f.iterations
+                                                      for f in config.validate()}}
     if config.params is not None and Path(config.params).is_file():
         run_config["params_sha256"] = file_sha256(config.params)
     plan = with_keys(plan, run_config)
