@@ -42,6 +42,9 @@ def headline_numbers(run_dir: Path) -> dict:
             "dp_over_p_core": gaussian_core(dp).sigma,
             "tracks_per_s": run["timing"]["fit"][name]["tracks_per_s"],
         }
+    passes = run["config"].get("fit_iterations") or {}
+    for name in out:
+        out[name]["passes"] = passes.get(name)
     if "parametrized" in out and "reference" in out:
         out["speed_up"] = out["parametrized"]["tracks_per_s"] / out["reference"]["tracks_per_s"]
         out["resolution_ratio"] = out["parametrized"]["dp_over_p_core"] / out["reference"]["dp_over_p_core"]
@@ -65,7 +68,8 @@ def run_demo(out: Path, events: int, seed: int, overwrite: bool, echo=print) -> 
         echo(f"{name:>12}: {n['tracks']} matched tracks; pull widths {widths}; "
              f"dp/p core {100 * n['dp_over_p_core']:.2f}%; {n['tracks_per_s']:.0f} tracks/s")
     echo(f"momentum resolution parametrized/reference: {numbers['resolution_ratio']:.3f}; "
-         f"fit speed-up: {numbers['speed_up']:.1f}x")
+         f"fit speed-up: {numbers['speed_up']:.1f}x (fit passes: parametrized "
+         f"{numbers['parametrized']['passes']}, reference {numbers['reference']['passes']})")
     summary = run_report([run_dir], out / "report", overwrite=overwrite)
     for name in DEMO_FITTERS:
         fit = (summary["fitters"][name].get("mass") or {}).get("fit") or {}
