@@ -143,3 +143,35 @@ def test_monomial_lists_follow_the_field_symmetry():
                    if sum(e) <= 4 and (e[0] + e[1]) % 2 == parity and (e[2] + e[3]) % 2 == parity}
         assert rows | old == allowed
     assert N_EXTRAPOLATION_PARAMS == LAYER_TY_OFFSET + len(LAYER_TY_MONOMIALS) == 50
+
+
+def test_generated_monomial_code_is_current():
+    """The unrolled sums in formulas.py are exactly what the generator writes for the
+    current exponent lists (run `python -m pkf.params.monomial_codegen --write` after
+    changing a list)."""
+    from pkf.params import monomial_codegen
+
+    assert monomial_codegen.current_block() == monomial_codegen.generated_block()
+
+
+def test_unrolled_monomial_sums_equal_the_generic_loop():
+    """The unrolled sums give bitwise the numbers of the generic loop `_monomial_sum`, and a
+    full set through `layer_step` equals the generic path (a 49-entry copy is summed by the
+    loop, its missing last coefficient set to zero in both)."""
+    from pkf.params.formulas import _monomial_sum, _powers, _tx_monomials, _ty_monomials
+
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        p = rng.normal(size=N_EXTRAPOLATION_PARAMS) * 1e-6
+        x, y = rng.uniform(-3000, 3000, size=2)
+        tx, ty = rng.uniform(-0.3, 0.3, size=2)
+        powers = (_powers(x), _powers(tx), _powers(y), _powers(ty))
+        assert _tx_monomials(p, *powers) == _monomial_sum(p, LAYER_TX_OFFSET, LAYER_TX_MONOMIALS, *powers)
+        assert _ty_monomials(p, *powers) == _monomial_sum(p, LAYER_TY_OFFSET, LAYER_TY_MONOMIALS, *powers)
+        p[-1] = 0.0
+        s = np.array([x, y, tx, ty, rng.uniform(-1e-3, 1e-3)])
+        out_full, out_loop = np.empty(5), np.empty(5)
+        jac_full, jac_loop = np.empty((5, 5)), np.empty((5, 5))
+        layer_step(p, s, 8036.0, 8508.0, out_full, jac_full)
+        layer_step(p[:-1].copy(), s, 8036.0, 8508.0, out_loop, jac_loop)
+        assert np.array_equal(out_full, out_loop) and np.array_equal(jac_full, jac_loop)
