@@ -74,7 +74,12 @@ def sample(geometry, ext):
     metrics = extension_metrics(geometry, result, velo, h, p, m)
     log.info("forward extension, %d lhcb-like minbias events at nu=%.1f: %s", EVENTS, PILEUP,
              {k: v for k, v in metrics.items() if k != "masks"})
-    return {"h": h, "p": p, "m": m, "velo": velo, "result": result, "metrics": metrics}
+    free = extend_velo_tracks(velo["event"], velo["state"], velo["z"], h["event_id"], h["layer"],
+                              h["u"], h["sigma_u"], geometry, ext, take_hits=False)
+    metrics_free = extension_metrics(geometry, free, velo, h, p, m)
+    log.info("... without taken hits: %s", {k: v for k, v in metrics_free.items() if k != "masks"})
+    return {"h": h, "p": p, "m": m, "velo": velo, "result": result, "metrics": metrics,
+            "metrics_free": metrics_free}
 
 
 # ------------------------------------------------------------------------------------
@@ -83,12 +88,13 @@ def sample(geometry, ext):
 
 def test_efficiency_and_ghost_rate(sample):
     """Long-reconstructible particles (DESIGN §10) are extended with ≥ 70 % correct hits;
-    measured on other seeds: ≈ 95.5 % above 5 GeV, ≈ 88 % at 2–5 GeV, ≈ 3 % ghosts."""
+    measured on this sample: 97.9 % above 5 GeV, 95.6 % at 2–5 GeV, 0.3 % ghosts (the VELO
+    tracks are from MC truth: no VELO ghosts to extend)."""
     met = sample["metrics"]
     assert met["n_p_gt_5GeV"] > 2500 and met["n_p_2_5GeV"] > 700
-    assert met["efficiency_p_gt_5GeV"] >= 0.93, met
-    assert met["efficiency_p_2_5GeV"] >= 0.84, met
-    assert met["ghost_rate"] <= 0.045, met
+    assert met["efficiency_p_gt_5GeV"] >= 0.95, met
+    assert met["efficiency_p_2_5GeV"] >= 0.92, met
+    assert met["ghost_rate"] <= 0.02, met
 
 
 def test_tracks_without_ut_hits_are_found(sample):
@@ -152,24 +158,62 @@ def test_output_structure(sample, geometry):
     assert found[~masks["is_long"]].mean() < 0.25
 
 
-def test_hit_order_and_batching_do_not_matter(sample, geometry, ext):
-    """Hits in any order and tracks in any subset give the same extensions (tracks are
-    independent; the hit rows refer to the caller's arrays)."""
-    h, velo, res = sample["h"], sample["velo"], sample["result"]
-    events = np.unique(velo["event"])[:4]
-    in_events = np.isin(h["event_id"], events)
-    rng = np.random.default_rng(5)
-    perm = rng.permutation(np.flatnonzero(in_events))
-    tracks = np.flatnonzero(np.isin(velo["event"], events))[::2]
-    sub = extend_velo_tracks(velo["event"][tracks], velo["state"][tracks], velo["z"][tracks],
-                             h["event_id"][perm], h["layer"][perm], h["u"][perm], h["sigma_u"][perm],
-                             geometry, ext)
+def _same_extensions(sub, res, tracks, hit_perm):
     assert np.array_equal(sub.status, res.status[tracks])
     np.testing.assert_allclose(sub.qop, res.qop[tracks], rtol=1e-9, atol=0.0, equal_nan=True)
     for i, t in enumerate(tracks):
-        mine = np.sort(perm[sub.hit_rows[sub.offsets[i]:sub.offsets[i + 1]]])
+        mine = np.sort(hit_perm[sub.hit_rows[sub.offsets[i]:sub.offsets[i + 1]]])
         full = np.sort(res.hit_rows[res.offsets[t]:res.offsets[t + 1]])
         assert np.array_equal(mine, full)
+
+
+def test_hit_order_and_batching_do_not_matter(sample, geometry, ext):
+    """Hits in any order and events in any subset give the same extensions (the hit rows
+    refer to the caller's arrays); without taken hits (take_hits=False) the tracks are
+    independent and any subset of them gives the same extensions too."""
+    h, velo, res = sample["h"], sample["velo"], sample["result"]
+    events = np.unique(velo["event"])[1:8:2]
+    in_events = np.isin(h["event_id"], events)
+    rng = np.random.default_rng(5)
+    perm = rng.permutation(np.flatnonzero(in_events))
+    hits = (h["event_id"][perm], h["layer"][perm], h["u"][perm], h["sigma_u"][perm])
+    tracks = np.flatnonzero(np.isin(velo["event"], events))
+    sub = extend_velo_tracks(velo["event"][tracks], velo["state"][tracks], velo["z"][tracks], *hits,
+                             geometry, ext)
+    _same_extensions(sub, res, tracks, perm)
+    free = dict(take_hits=False)
+    all_free = extend_velo_tracks(velo["event"], velo["state"], velo["z"], h["event_id"], h["layer"], h["u"],
+                                  h["sigma_u"], geometry, ext, **free)
+    some = tracks[::2]
+    sub_free = extend_velo_tracks(velo["event"][some], velo["state"][some], velo["z"][some], *hits,
+                                  geometry, ext, **free)
+    _same_extensions(sub_free, all_free, some, perm)
+
+
+def test_good_extensions_take_their_hits(sample):
+    """A good extension of the first pass (p-value ≥ good_pvalue, ≥ 11 SciFi hits, from a UT
+    start) takes its hits: no later track of its event has any of them; and taking them
+    lowers the ghost rate without losing efficiency (the second-pass scan sees fewer
+    random hits)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    res, velo = sample["result"], sample["velo"]
+    options = ForwardOptions()
+    good = res.found & (chi2_dist.sf(res.chi2, np.maximum(res.ndf, 1)) >= options.good_pvalue) \
+        & (res.n_scifi >= 11) & ~res.from_scan
+    assert good.mean() > 0.5 and 0.0 < res.from_scan[res.found].mean() < 0.2
+    t = res.track_of_hit
+    order = np.lexsort((t, res.hit_rows))  # by hit, then track
+    rows, owner = res.hit_rows[order], t[order]
+    shared = np.flatnonzero(rows[1:] == rows[:-1])
+    assert shared.size > 0  # hits are shared, but never after a good extension took them
+    assert not np.any(good[owner[shared]] & (owner[shared + 1] > owner[shared])
+                      & (velo["event"][owner[shared + 1]] == velo["event"][owner[shared]]))
+    free = sample["metrics_free"]
+    met = sample["metrics"]
+    assert met["ghost_rate"] < 0.85 * free["ghost_rate"], (met["ghost_rate"], free["ghost_rate"])
+    assert met["efficiency_p_gt_5GeV"] >= free["efficiency_p_gt_5GeV"] - 0.003
+    assert met["efficiency_p_2_5GeV"] >= free["efficiency_p_2_5GeV"] - 0.005
 
 
 # ------------------------------------------------------------------------------------

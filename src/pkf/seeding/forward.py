@@ -31,8 +31,7 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    random combination often looks as good as the true one: the UT only guides the SciFi
    search, and UT hits are attached at the end with the SciFi momentum (step 4).
 2. **q/p scan of the SciFi x layers (Hough in q/p)** for each start — the UT candidates,
-   best first, then (if no extension was accepted) the VELO prior alone over |q/p| ≤
-   1/p_min. The start state given q/p is transported to the SciFi layers at q/p nodes
+   best first; in the second pass (step 6) the VELO prior alone over |q/p| ≤ 1/p_min. The start state given q/p is transported to the SciFi layers at q/p nodes
    (``node_spacing``/3 GeV apart, cubic Hermite in between: ≤ 0.3 mm); each x-layer hit in
    the covered range gets its implied q/p (inverse Hermite, hits visited in x order) and a
    Hough coordinate t in units of the tolerance τ(q) = ``hough_tol_abs`` +
@@ -70,6 +69,17 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    ``good_pvalue`` and ≥ 11 SciFi hits.
 5. Without an accepted extension the best UT candidate is returned as an upstream track
    (STATUS_NO_SCIFI, q/p from the kink).
+6. **Two passes; good extensions take their hits.** The first pass runs steps 1–4 from
+   the UT starts for every track of the batch, in order. An extension that ends its
+   search (p-value ≥ ``good_pvalue``, ≥ 11 SciFi hits) takes its UT and SciFi hits: later
+   searches of the same event do not see them (``take_hits``). The second pass runs the
+   full-range scan for the tracks still without an extension, on the hits left. The
+   scan sees every x-layer hit of the event in its window, and at ν = 7.6 most of them
+   belong to tracks found in the first pass: taking them makes the scan several times
+   cheaper and leaves fewer random lines to find (ν = 7.6, 100 events: forward time
+   −35 %, ghost rate 3.3 → 1.9 %, efficiency +0.2 points for p > 5 GeV, +0.6 for
+   2–5 GeV). Results depend on the order of the tracks within an event (the VELO
+   search's, deterministic), not on how events are batched.
 
 Momenta below the UT→SciFi table's p_min (3 GeV) are searched with the table's quadratic
 continuation (`pkf.seeding.forward_steps`): the hits found are as good as any, the q/p
@@ -134,8 +144,8 @@ _MODE_OFF = 2
 _N_FOPT = 21
 (_I_UT_MIN, _I_UT_FIRST, _I_BRANCH, _I_MIN_X, _I_MAX_CLUSTERS, _I_SF_MIN, _I_FALLBACK,
  _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X, _I_UT_CANDIDATES, _I_STEREO_CANDIDATES,
- _I_NOUT_MIN, _I_UT_REFITS, _I_UT_BRANCH, _I_WINDOW_BINS) = range(17)
-_N_IOPT = 17
+ _I_NOUT_MIN, _I_UT_REFITS, _I_UT_BRANCH, _I_WINDOW_BINS, _I_TAKE_HITS) = range(18)
+_N_IOPT = 18
 
 
 @dataclass(frozen=True)
@@ -185,7 +195,9 @@ class ForwardOptions:
     no_ut_pvalue [0.01]        (4) … and its p-value cut
     good_pvalue [0.01]         (4) an accepted extension with this p-value and ≥ 11 SciFi
                                hits ends the search of its track
-    no_ut_fallback [True]      (2) scan with the VELO prior alone when the UT starts fail
+    no_ut_fallback [True]      (6) scan with the VELO prior alone when the UT starts fail
+    take_hits [True]           (6) a good extension takes its hits: later searches of the event
+                               do not see them
     quadratic_continuation [True] continue the UT→SciFi table quadratically below its p_min
                                (False: linearly, as `pkf.params.ut_to_scifi`)
     max_nodes [4000]           visited KF nodes per combinatorial search (a safety cap)
@@ -228,6 +240,7 @@ class ForwardOptions:
     good_pvalue: float = 0.01
     pvalue: float = 1e-4
     no_ut_fallback: bool = True
+    take_hits: bool = True
     ut_confirm_min_hits: int = 2
     confirm_window_sigmas: float = 3.0
     quadratic_continuation: bool = True
@@ -300,6 +313,7 @@ class ForwardOptions:
         i[_I_UT_REFITS] = self.ut_refits
         i[_I_UT_BRANCH] = self.ut_branch
         i[_I_WINDOW_BINS] = self.window_bins
+        i[_I_TAKE_HITS] = int(self.take_hits)
         return f, i
 
 
@@ -312,7 +326,8 @@ class ForwardTracks:
     qop_var: the q/p estimate (at production, DESIGN §9.2) and its variance (NaN if
     none); chi2/ndf of the extension fit (ndf = hits − 1, the VELO state as prior);
     status: STATUS_* (STATUS_NAMES); below_table_p_min: |q/p| > 1/p_min of the
-    UT→SciFi table (the parametrized fit returns status 4 there).
+    UT→SciFi table (the parametrized fit returns status 4 there); from_scan: the
+    extension was found by the second pass's full-range scan (step 6), not from a UT start.
     """
 
     offsets: np.ndarray
@@ -325,6 +340,7 @@ class ForwardTracks:
     ndf: np.ndarray
     status: np.ndarray
     below_table_p_min: np.ndarray
+    from_scan: np.ndarray
 
     @property
     def n_tracks(self) -> int:
@@ -443,7 +459,7 @@ def _maybe_crossed(x, y, vx, vy, acc):
 
 
 @nb.njit(cache=True)
-def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, pm_value, pm_var,
             nsig, first_branches, max_branch, max_skip, min_hits, skip_first, need, chi2_prune,
             max_nodes, ws, best_path, best_x, best_P, top, miss_penalty):
@@ -549,7 +565,7 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, f_cos, f_sin, f_sig, f_acc
                 while h < hi and hu[h] <= up + hw:
                     r = hu[h] - up
                     c2 = r * r / (sb + hsig[h] * hsig[h])
-                    if c2 < nsig * nsig:
+                    if c2 < nsig * nsig and not used[h]:
                         # insertion into the sorted top-kmax list
                         if nc < kmax:
                             pos = nc
@@ -778,7 +794,7 @@ def _conditional(P, pc, k):
 
 
 @nb.njit(cache=True)
-def _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs, sdxs,
+def _stereo_score(loe, hu, hsig, used, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs, sdxs,
                   sys_, sdys, q_c, alpha, beta, z0, sig2, pc, z_ut, nsig):
     """Stereo confirmation of a q/p cluster: on every SciFi stereo layer the nearest hit
     to u = x·cos α + y·sin α, with x from the cluster's line and y from the VELO prior
@@ -812,8 +828,8 @@ def _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_no
         best = nsig * nsig
         h = lo
         while h < loe[j + 1] and hu[h] <= up + hw:
-            c2 = (hu[h] - up) ** 2 / var
-            best = min(best, c2)
+            if not used[h]:
+                best = min(best, (hu[h] - up) ** 2 / var)
             h += 1
         if best < nsig * nsig:
             n_found += 1
@@ -946,7 +962,7 @@ def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z,
 
 
 @nb.njit(cache=True)
-def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, tgrid, s0, ds0, pc,
+def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, used, opt, iopt, cuts, tgrid, s0, ds0, pc,
                   q_lo, q_hi, ut_hits, W, cand):
     """Steps 2–3: q/p scan of the SciFi x layers over [q_lo, q_hi], then the combinatorial
     KF from the best clusters (through the UT hits ut_hits, −1: none, then the SciFi
@@ -1026,6 +1042,9 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         hi = loe[x_fwd[li] + 1]
         seg = 0
         while h < hi and hu[h] <= x_max and n_e < max_entries:
+            if used[h]:
+                h += 1
+                continue
             x = hu[h]
             while seg < n_nodes - 2 and x > nx_x[li, seg + 1]:
                 seg += 1
@@ -1146,7 +1165,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + n_win, n_bins)], e_hit, e_t,
                                                e_li, e_order, hu, n_x, d_l, False, 0.0, x_z, sig2, w_beta,
                                                chosen, rx, cand_e, cand_r, cand_n)
-        sscore, _ = _stereo_score(loe, hu, hsig, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs,
+        sscore, _ = _stereo_score(loe, hu, hsig, used, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs,
                                   sdxs, sys_, sdys, q_c, alpha, beta, x_z[0], sig2, pc, z_ut, nsig)
         cl_key[best] += sscore
     for c_ in range(n_cl):
@@ -1206,7 +1225,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, 
         x0[4] = -q_c
         _velo_prior(opt, abs(q_c), opt[_O_WEAK_QPRIOR], P0)
         n_sf, _, chi_c = _search(
-            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+            0, n_fwd, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, xpm, pm_var,
             nsig, iopt[_I_BRANCH], iopt[_I_BRANCH], n_fwd - n_ut - iopt[_I_SF_MIN],
             iopt[_I_SF_MIN], False, sf_need, sf_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top, miss)
@@ -1291,7 +1310,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
     (f_layer, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end, f_need_end, sf_need, x_layers, x_fwd,
      x_station_bit, x_station_need, n_ut) = geo
     ut_prune, sf_prune, final_cut, noutcut, good_cut_ = cuts
-    out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf = out
+    out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf, out_scan = out
     ut_cut = good_cut[1]
     good_cut = good_cut[0]
     n_fwd = f_layer.shape[0]
@@ -1336,139 +1355,170 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
     u_s0 = np.zeros((n_utc_max, 5))
     u_ds0 = np.zeros((n_utc_max, 5))
     ut_hits = np.full(n_fwd, -1, dtype=np.int64)
-    for t in range(t_ev.shape[0]):
+    # Two passes (module docstring, step 6): the UT starts of every track, then the full-range
+    # scan for the tracks without an extension, on the SciFi hits no good extension took
+    n_tracks = t_ev.shape[0]
+    used = np.zeros(hu.shape[0], dtype=np.bool_)
+    need_scan = np.zeros(n_tracks, dtype=np.bool_)
+    keep_s0 = np.zeros((n_tracks, 5))
+    keep_ds0 = np.zeros((n_tracks, 5))
+    keep_pc = np.zeros((n_tracks, 12))
+    keep_ut = np.zeros((n_tracks, n_ut), dtype=np.int64)
+    keep_u = np.zeros((n_tracks, 4))  # q/p, its variance, χ², hits of the best UT candidate
+    keep_nutc = np.zeros(n_tracks, dtype=np.int64)
+    for step in range(2 * n_tracks):
+        second_pass = step >= n_tracks
+        t = step - n_tracks if second_pass else step
+        if second_pass and not need_scan[t]:
+            continue
         e = t_ev[t]
         a = t_layer[t]
         loe = lay_off[e]
-        for i in range(4):
-            s_v[i] = t_state[t, i]
-        s_v[4] = 0.0
-        out_status[t] = STATUS_NOT_FOUND
-        for j in range(n_fwd):
-            out_hits[t, j] = -1
-        ok_state = a >= 0
-        for i in range(4):
-            if not np.isfinite(s_v[i]):
-                ok_state = False
-        if not ok_state:
-            out_status[t] = STATUS_INVALID
-            continue
-        # ---- the VELO prior carried through the UT without hits, at the noise of 1/p_min and
-        # without noise: the state at the last UT layer given q/p and its covariance
-        st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, 0.0, ref_s, ref_F,
-                        ref_Q, work, opt[_O_MODEL])
-        if st == TRANSPORT_FAILED:
-            out_status[t] = STATUS_INVALID
-            continue
-        for j in range(n_fwd):
-            mode[j] = _MODE_OFF
-        for i in range(5):
-            x0[i] = 0.0
-        _velo_prior(opt, 0.0, opt[_O_WEAK_QPRIOR], P0)
-        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-                f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
-                ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
-        for i in range(5):
-            s0[i] = ref_s[n_ut - 1, i] + cx[i]
-            ds0[i] = cP[i, 4] / cP[4, 4]
-        _conditional(cP, pc, 0)
-        _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q,
-                   work, opt[_O_MODEL])
-        _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
-        _search(0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-                f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
-                ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
-        _conditional(cP, pc, 6)
-        for i in range(6):
-            pc[6 + i] = (pc[6 + i] - pc[i]) / (qmax * qmax)
-        # ---- 1. UT search around q/p = 0 (noise of 1/p_min): q/p ranges of its best leaves
-        for j in range(n_fwd):
-            mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
-        _velo_prior(opt, qmax, opt[_O_UT_QPRIOR], P0)
-        nb_ut, _, _ = _search(
-            0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-            f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-            opt[_O_UT_NSIG], iopt[_I_UT_FIRST], iopt[_I_UT_BRANCH], n_ut - iopt[_I_UT_MIN],
-            iopt[_I_UT_MIN], True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top_ut, 1e6)
-        n_leaves = top_ut[5][0]
-        q0_ref = ref_s[n_ut - 1, 4]
-        for j in range(n_fwd):
-            ut_best[j] = top_ut[0][0, j] if (n_leaves > 0 and j < n_ut) else -1
-        # re-fit each leaf around its own q/p with the noise at that q/p (the search used the
-        # noise of 1/p_min): its q/p range for the SciFi scan
-        n_utc = 0
-        for c in range(n_leaves):
-            q_c = q0_ref + top_ut[3][c]
-            v_c = top_ut[4][c]
-            chi_c = 1e300
-            n_c = 0
-            for iteration in range(iopt[_I_UT_REFITS]):
-                q_noise = min(math.sqrt(q_c * q_c + v_c), qmax)
-                st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, q_c, q_noise, ref_s,
-                                ref_F, ref_Q, work, opt[_O_MODEL])
-                if st == TRANSPORT_FAILED:
-                    n_c = 0
-                    break
-                for j in range(n_ut):
-                    mode[j] = _MODE_FIXED
-                    fixed[j] = top_ut[0][c, j]
-                for i in range(4):
-                    x0[i] = 0.0
-                x0[4] = -q_c
-                _velo_prior(opt, q_noise, opt[_O_WEAK_QPRIOR], P0)
-                _, n_c, chi_c = _search(
-                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-                    opt[_O_UT_NSIG], 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx,
-                    cP, top_none, 1e6)
-                if n_c < iopt[_I_UT_MIN]:
-                    break
-                q_c = ref_s[n_ut - 1, 4] + cx[4]
-                v_c = cP[4, 4]
-            if n_c < iopt[_I_UT_MIN] or chi_c > ut_cut[min(n_c, ut_cut.shape[0] - 1)]:
-                continue
-            w_ = opt[_O_HOUGH_NSIG] * math.sqrt(v_c)
-            # insert by (hits, χ²)
-            pos = n_utc
-            while pos > 0 and (n_c > u_n[pos - 1] or (n_c == u_n[pos - 1] and chi_c < u_chi[pos - 1])):
-                pos -= 1
-            for k in range(n_utc, pos, -1):
-                r_lo[k] = r_lo[k - 1]
-                r_hi[k] = r_hi[k - 1]
-                u_q[k] = u_q[k - 1]
-                u_var[k] = u_var[k - 1]
-                u_chi[k] = u_chi[k - 1]
-                u_n[k] = u_n[k - 1]
-                u_leaf[k] = u_leaf[k - 1]
-                for i in range(12):
-                    u_pc[k, i] = u_pc[k - 1, i]
-                for i in range(5):
-                    u_s0[k, i] = u_s0[k - 1, i]
-                    u_ds0[k, i] = u_ds0[k - 1, i]
-            r_lo[pos] = max(q_c - w_, -qmax)
-            r_hi[pos] = min(q_c + w_, qmax)
-            u_q[pos] = q_c
-            u_var[pos] = v_c
-            u_chi[pos] = chi_c
-            u_n[pos] = n_c
-            u_leaf[pos] = c
-            _conditional(cP, u_pc[pos], 0)
-            for i in range(6, 12):
-                u_pc[pos, i] = 0.0
+        if second_pass:
+            for i in range(4):
+                s_v[i] = t_state[t, i]
+            s_v[4] = 0.0
             for i in range(5):
-                u_s0[pos, i] = ref_s[n_ut - 1, i] + cx[i]
-                u_ds0[pos, i] = cP[i, 4] / cP[4, 4]
-            n_utc += 1
-        if n_utc > 0:
+                s0[i] = keep_s0[t, i]
+                ds0[i] = keep_ds0[t, i]
+            for i in range(12):
+                pc[i] = keep_pc[t, i]
             for j in range(n_ut):
-                ut_best[j] = top_ut[0][u_leaf[0], j]
-        # ---- 2–5. SciFi over the union of the UT ranges, then (if needed) the full range
+                ut_best[j] = keep_ut[t, j]
+            n_utc = keep_nutc[t]
+            u_q[0] = keep_u[t, 0]
+            u_var[0] = keep_u[t, 1]
+            u_chi[0] = keep_u[t, 2]
+            u_n[0] = int(keep_u[t, 3])
+        else:
+            for i in range(4):
+                s_v[i] = t_state[t, i]
+            s_v[4] = 0.0
+            out_status[t] = STATUS_NOT_FOUND
+            for j in range(n_fwd):
+                out_hits[t, j] = -1
+            ok_state = a >= 0
+            for i in range(4):
+                if not np.isfinite(s_v[i]):
+                    ok_state = False
+            if not ok_state:
+                out_status[t] = STATUS_INVALID
+                continue
+            # ---- the VELO prior carried through the UT without hits, at the noise of 1/p_min and
+            # without noise: the state at the last UT layer given q/p and its covariance
+            st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, 0.0, ref_s, ref_F,
+                            ref_Q, work, opt[_O_MODEL])
+            if st == TRANSPORT_FAILED:
+                out_status[t] = STATUS_INVALID
+                continue
+            for j in range(n_fwd):
+                mode[j] = _MODE_OFF
+            for i in range(5):
+                x0[i] = 0.0
+            _velo_prior(opt, 0.0, opt[_O_WEAK_QPRIOR], P0)
+            _search(0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
+                    ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+            for i in range(5):
+                s0[i] = ref_s[n_ut - 1, i] + cx[i]
+                ds0[i] = cP[i, 4] / cP[4, 4]
+            _conditional(cP, pc, 0)
+            _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q,
+                       work, opt[_O_MODEL])
+            _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
+            _search(0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
+                    ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+            _conditional(cP, pc, 6)
+            for i in range(6):
+                pc[6 + i] = (pc[6 + i] - pc[i]) / (qmax * qmax)
+            # ---- 1. UT search around q/p = 0 (noise of 1/p_min): q/p ranges of its best leaves
+            for j in range(n_fwd):
+                mode[j] = _MODE_SEARCH if j < n_ut else _MODE_OFF
+            _velo_prior(opt, qmax, opt[_O_UT_QPRIOR], P0)
+            nb_ut, _, _ = _search(
+                0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+                f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+                opt[_O_UT_NSIG], iopt[_I_UT_FIRST], iopt[_I_UT_BRANCH], n_ut - iopt[_I_UT_MIN],
+                iopt[_I_UT_MIN], True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, bx, bP, top_ut, 1e6)
+            n_leaves = top_ut[5][0]
+            q0_ref = ref_s[n_ut - 1, 4]
+            for j in range(n_fwd):
+                ut_best[j] = top_ut[0][0, j] if (n_leaves > 0 and j < n_ut) else -1
+            # re-fit each leaf around its own q/p with the noise at that q/p (the search used the
+            # noise of 1/p_min): its q/p range for the SciFi scan
+            n_utc = 0
+            for c in range(n_leaves):
+                q_c = q0_ref + top_ut[3][c]
+                v_c = top_ut[4][c]
+                chi_c = 1e300
+                n_c = 0
+                for iteration in range(iopt[_I_UT_REFITS]):
+                    q_noise = min(math.sqrt(q_c * q_c + v_c), qmax)
+                    st = _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, q_c, q_noise, ref_s,
+                                    ref_F, ref_Q, work, opt[_O_MODEL])
+                    if st == TRANSPORT_FAILED:
+                        n_c = 0
+                        break
+                    for j in range(n_ut):
+                        mode[j] = _MODE_FIXED
+                        fixed[j] = top_ut[0][c, j]
+                    for i in range(4):
+                        x0[i] = 0.0
+                    x0[4] = -q_c
+                    _velo_prior(opt, q_noise, opt[_O_WEAK_QPRIOR], P0)
+                    _, n_c, chi_c = _search(
+                        0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+                        f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
+                        opt[_O_UT_NSIG], 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx,
+                        cP, top_none, 1e6)
+                    if n_c < iopt[_I_UT_MIN]:
+                        break
+                    q_c = ref_s[n_ut - 1, 4] + cx[4]
+                    v_c = cP[4, 4]
+                if n_c < iopt[_I_UT_MIN] or chi_c > ut_cut[min(n_c, ut_cut.shape[0] - 1)]:
+                    continue
+                w_ = opt[_O_HOUGH_NSIG] * math.sqrt(v_c)
+                # insert by (hits, χ²)
+                pos = n_utc
+                while pos > 0 and (n_c > u_n[pos - 1] or (n_c == u_n[pos - 1] and chi_c < u_chi[pos - 1])):
+                    pos -= 1
+                for k in range(n_utc, pos, -1):
+                    r_lo[k] = r_lo[k - 1]
+                    r_hi[k] = r_hi[k - 1]
+                    u_q[k] = u_q[k - 1]
+                    u_var[k] = u_var[k - 1]
+                    u_chi[k] = u_chi[k - 1]
+                    u_n[k] = u_n[k - 1]
+                    u_leaf[k] = u_leaf[k - 1]
+                    for i in range(12):
+                        u_pc[k, i] = u_pc[k - 1, i]
+                    for i in range(5):
+                        u_s0[k, i] = u_s0[k - 1, i]
+                        u_ds0[k, i] = u_ds0[k - 1, i]
+                r_lo[pos] = max(q_c - w_, -qmax)
+                r_hi[pos] = min(q_c + w_, qmax)
+                u_q[pos] = q_c
+                u_var[pos] = v_c
+                u_chi[pos] = chi_c
+                u_n[pos] = n_c
+                u_leaf[pos] = c
+                _conditional(cP, u_pc[pos], 0)
+                for i in range(6, 12):
+                    u_pc[pos, i] = 0.0
+                for i in range(5):
+                    u_s0[pos, i] = ref_s[n_ut - 1, i] + cx[i]
+                    u_ds0[pos, i] = cP[i, 4] / cP[4, 4]
+                n_utc += 1
+            if n_utc > 0:
+                for j in range(n_ut):
+                    ut_best[j] = top_ut[0][u_leaf[0], j]
+        # ---- 2–5. SciFi from each UT candidate (its fitted state, its q/p range, its hits in
+        # the KF), best first; in the second pass the VELO prior alone over the whole range
         best_key[0] = 1e300
         final_ok = False
-        # each UT candidate (its fitted state, its q/p range, its hits in the KF), best first;
-        # then the VELO prior alone over the whole range
         done = False
-        for attempt in range(n_utc + 1):
+        for attempt in range(n_utc, n_utc + 1) if second_pass else range(n_utc):
             if done:
                 break
             if attempt < n_utc:
@@ -1480,7 +1530,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
                 c_ds0 = u_ds0[attempt]
                 c_pc = u_pc[attempt]
             else:
-                if final_ok or (attempt > 0 and iopt[_I_FALLBACK] == 0):
+                if iopt[_I_FALLBACK] == 0:
                     break
                 q_lo = -qmax
                 q_hi = qmax
@@ -1489,12 +1539,12 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
                 c_s0 = s0
                 c_ds0 = ds0
                 c_pc = pc
-            n_c = _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, opt, iopt, cuts, tgrid,
+            n_c = _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, used, opt, iopt, cuts, tgrid,
                                 c_s0, c_ds0, c_pc, q_lo, q_hi, ut_hits, W, cand)
             for c in range(n_c):
                 ok_c = _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, c_q[c], c_var[c],
                                  c_paths[c], ut_best, n_utc > 0, mode, fixed,
-                                 loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end, f_need_end,
+                                 loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end, f_need_end,
                                  ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune, final_cut,
                                  noutcut, sf_prune, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar,
                                  out_chi2,
@@ -1504,6 +1554,27 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
                         and out_nsf[t] >= n_fwd - n_ut - 1:
                     done = True  # a good, (nearly) complete extension: no need to look further
                     break
+        if not second_pass:
+            if final_ok and done and iopt[_I_TAKE_HITS] != 0:
+                for j in range(n_fwd):  # a good extension takes its UT and SciFi hits
+                    if out_hits[t, j] >= 0:
+                        used[out_hits[t, j]] = True
+            elif not final_ok:
+                need_scan[t] = True
+                for i in range(5):
+                    keep_s0[t, i] = s0[i]
+                    keep_ds0[t, i] = ds0[i]
+                for i in range(12):
+                    keep_pc[t, i] = pc[i]
+                for j in range(n_ut):
+                    keep_ut[t, j] = ut_best[j]
+                keep_nutc[t] = n_utc
+                keep_u[t, 0] = u_q[0]
+                keep_u[t, 1] = u_var[0]
+                keep_u[t, 2] = u_chi[0]
+                keep_u[t, 3] = u_n[0]
+            continue
+        out_scan[t] = final_ok
         if not final_ok and n_utc > 0:
             # an upstream track: the best UT leaf, its q/p from the kink
             out_status[t] = STATUS_NO_SCIFI
@@ -1521,7 +1592,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
 
 @nb.njit(cache=True)
 def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_best, sf_path,
-              ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit,
+              ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit,
               f_group_end, f_need_end, ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune,
               final_cut, noutcut, sf_prune, ws, path, cx, cP, bx, bP, t, out_hits, out_q, out_qvar,
               out_chi2, out_ndf, out_status, out_nut, out_nsf, top_none, best_key):
@@ -1542,7 +1613,7 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
                 _velo_prior(opt, abs(q_best), 0.0, P0)
                 P0[4, 4] = var_best
                 nb_c, _, _ = _search(
-                    0, n_ut, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+                    0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
                     f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
                     opt[_O_CONFIRM_NSIG], iopt[_I_BRANCH], iopt[_I_BRANCH], n_ut - confirm_min,
                     confirm_min, True, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
@@ -1571,7 +1642,7 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
         x0[4] = -q_best
         _velo_prior(opt, abs(q_best), opt[_O_WEAK_QPRIOR], P0)
         _, n_fit, chi_f = _search(
-            0, n_fwd, mode, fixed, loe, hu, hsig, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
+            0, n_fwd, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
             opt[_O_NSIG], 1, 1, 0, 0, False, 0, sf_prune, iopt[_I_MAX_NODES], ws, path, bx, bP,
             top_none, 1e6)
@@ -1817,12 +1888,14 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     out_status = np.full(n, STATUS_NOT_FOUND, dtype=np.int64)
     out_nut = np.zeros(n, dtype=np.int64)
     out_nsf = np.zeros(n, dtype=np.int64)
+    out_scan = np.zeros(n, dtype=np.bool_)
     if n and prep["n_events"]:
         _extend_kernel(ext, prep["poly"], prep["tref"], prep["geo"], prep["t_ev"], prep["state"],
                        prep["t_layer"], prep["lay_off"], prep["hu"], prep["hsig"], prep["fopt"],
                        prep["iopt"], prep["cuts"], (prep["good_cut"], prep["ut_cut"]), prep["tgrid"],
                        prep["max_entries"], prep["max_bins"],
-                       (out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf))
+                       (out_hits, out_q, out_qvar, out_chi2, out_ndf, out_status, out_nut, out_nsf,
+                        out_scan))
     rows = prep["rows"]
     p_table = prep["p_table"]
     found = out_hits >= 0
@@ -1833,5 +1906,5 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     return ForwardTracks(
         offsets=offsets, hit_rows=hit_rows.astype(np.int64), n_ut=out_nut, n_scifi=out_nsf,
         qop=out_q, qop_var=out_qvar, chi2=out_chi2, ndf=out_ndf, status=out_status,
-        below_table_p_min=np.abs(out_q) > p_table_q,
+        below_table_p_min=np.abs(out_q) > p_table_q, from_scan=out_scan,
     )
