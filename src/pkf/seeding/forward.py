@@ -365,46 +365,48 @@ class ForwardTracks:
 # ------------------------------------------------------------------------------------
 
 @nb.njit(cache=True, inline="always")
-def _predict(F, Q, x, P, x_out, P_out, tmp):
-    """x_out = F·x, P_out = F·P·Fᵀ + Q for the parametrized steps: q/p is transported
-    unchanged (F row 4 = e₄) and has no noise (Q row/column 4 = 0)."""
+def _predict(F3, Q3, j, X, P3, a, X_out, P3_out, b, tmp):
+    """X_out[b] = F·X[a], P3_out[b] = F·P3[a]·Fᵀ + Q with F = F3[j], Q = Q3[j], for the
+    parametrized steps: q/p is transported unchanged (F row 4 = e₄) and has no noise
+    (Q row/column 4 = 0). Indexed rather than sliced: a slice is an array view, and the
+    views' reference counting cost more than the arithmetic in this loop."""
     for i in range(4):
         acc = 0.0
         for k in range(5):
-            acc += F[i, k] * x[k]
-        x_out[i] = acc
-    x_out[4] = x[4]
+            acc += F3[j, i, k] * X[a, k]
+        X_out[b, i] = acc
+    X_out[b, 4] = X[a, 4]
     for i in range(4):
         for k in range(5):
             acc = 0.0
             for m in range(5):
-                acc += F[i, m] * P[m, k]
+                acc += F3[j, i, m] * P3[a, m, k]
             tmp[i, k] = acc
     for k in range(5):
-        tmp[4, k] = P[4, k]
+        tmp[4, k] = P3[a, 4, k]
     for i in range(4):
         for k in range(i, 4):
-            acc = Q[i, k]
+            acc = Q3[j, i, k]
             for m in range(5):
-                acc += tmp[i, m] * F[k, m]
-            P_out[i, k] = acc
-            P_out[k, i] = acc
+                acc += tmp[i, m] * F3[j, k, m]
+            P3_out[b, i, k] = acc
+            P3_out[b, k, i] = acc
         acc = tmp[i, 4]  # (F·P)[i, 4] · F[4, 4] = 1
-        P_out[i, 4] = acc
-        P_out[4, i] = acc
-    P_out[4, 4] = P[4, 4]
+        P3_out[b, i, 4] = acc
+        P3_out[b, 4, i] = acc
+    P3_out[b, 4, 4] = P3[a, 4, 4]
 
 
 @nb.njit(cache=True, inline="always")
-def _update(x, P, c, s, r, var, x_out, P_out, pht):
-    """Strip update with residual r and residual variance var = H·P·Hᵀ + σ²."""
+def _update(X, P3, d, c, s, r, var, X_out, P3_out, pht):
+    """Strip update of state d with residual r and residual variance var = H·P·Hᵀ + σ²."""
     for i in range(5):
-        pht[i] = c * P[i, 0] + s * P[i, 1]
+        pht[i] = c * P3[d, i, 0] + s * P3[d, i, 1]
     for i in range(5):
         k = pht[i] / var
-        x_out[i] = x[i] + k * r
+        X_out[d, i] = X[d, i] + k * r
         for m in range(5):
-            P_out[i, m] = P[i, m] - k * pht[m]
+            P3_out[d, i, m] = P3[d, i, m] - k * pht[m]
 
 
 @nb.njit(cache=True, inline="always")
@@ -442,18 +444,18 @@ def _reference(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_v, q, q_noise, r
 
 
 @nb.njit(cache=True, inline="always")
-def _maybe_crossed(x, y, vx, vy, acc):
-    """False if (x, y) with variances (vx, vy) is outside the active area acc (half_x,
+def _maybe_crossed(x, y, vx, vy, acc, j):
+    """False if (x, y) with variances (vx, vy) is outside the active area acc[j] (half_x,
     half_y, hole radius, hole half_x, hole half_y) by more than 3σ."""
     sx = 3.0 * math.sqrt(max(vx, 0.0))
     sy = 3.0 * math.sqrt(max(vy, 0.0))
-    if abs(x) - sx > acc[0] or abs(y) - sy > acc[1]:
+    if abs(x) - sx > acc[j, 0] or abs(y) - sy > acc[j, 1]:
         return False
-    if acc[2] > 0.0:
+    if acc[j, 2] > 0.0:
         r = math.sqrt(x * x + y * y)
-        if r + math.sqrt(sx * sx + sy * sy) < acc[2]:
+        if r + math.sqrt(sx * sx + sy * sy) < acc[j, 2]:
             return False
-    if acc[3] > 0.0 and abs(x) + sx < acc[3] and abs(y) + sy < acc[4]:
+    if acc[j, 3] > 0.0 and abs(x) + sx < acc[j, 3] and abs(y) + sy < acc[j, 4]:
         return False
     return True
 
@@ -485,7 +487,11 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
     n_top_max = top_n.shape[0]
     top_count[0] = 0
     (pred_x, post_x, pred_P, post_P, tmp, pht, upred, sbase, post_chi, ch_chi, n_ch, it, post_n,
-     post_nf, post_skip, post_mask, post_att, path, ch_hit) = ws
+     post_nf, post_skip, post_mask, post_att, path, ch_hit, x_init, P_init) = ws
+    for i in range(5):
+        x_init[0, i] = x0[i]
+        for k in range(5):
+            P_init[0, i, k] = P0[i, k]
     best_n = -1
     best_nf = 0
     best_chi = 1e300
@@ -497,13 +503,13 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
             expand = False
             j = j0 + d
             if d == 0:
-                _predict(ref_F[j], ref_Q[j], x0, P0, pred_x[d], pred_P[d], tmp)
+                _predict(ref_F, ref_Q, j, x_init, P_init, 0, pred_x, pred_P, d, tmp)
                 prev_chi = 0.0
                 prev_n = 0
                 prev_nf = 0
                 prev_att = 0
             else:
-                _predict(ref_F[j], ref_Q[j], post_x[d - 1], post_P[d - 1], pred_x[d], pred_P[d], tmp)
+                _predict(ref_F, ref_Q, j, post_x, post_P, d - 1, pred_x, pred_P, d, tmp)
                 prev_chi = post_chi[d - 1]
                 prev_n = post_n[d - 1]
                 prev_nf = post_nf[d - 1]
@@ -532,7 +538,7 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
             nc = 0
             md = mode[j]
             if md != _MODE_OFF and not _maybe_crossed(ref_s[j, 0] + pred_x[d, 0], ref_s[j, 1] + pred_x[d, 1],
-                                                      pred_P[d, 0, 0], pred_P[d, 1, 1], f_acc[j]):
+                                                      pred_P[d, 0, 0], pred_P[d, 1, 1], f_acc, j):
                 md = _MODE_OFF  # certainly outside the active area: no hit, not a missing one
             lo = lay_off_e[j]
             hi = lay_off_e[j + 1]
@@ -621,7 +627,7 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
             s = f_sin[j]
             var = sbase[d] + hsig[h] * hsig[h]
             r = hu[h] - upred[d]
-            _update(pred_x[d], pred_P[d], c, s, r, var, post_x[d], post_P[d], pht)
+            _update(pred_x, pred_P, d, c, s, r, var, post_x, post_P, pht)
             post_chi[d] = prev_chi + r * r / var
             if mode[j] == _MODE_SEARCH:
                 post_n[d] = prev_n + 1
@@ -692,6 +698,67 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
         d += 1
         expand = True
     return best_n, best_nf, best_chi
+
+
+@nb.njit(cache=True)
+def _fit_fixed(j0, j1, fixed, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end, f_need_end, ref_s, ref_F,
+               ref_Q, x0, P0, nsig, chi2_prune, ws, best_path, best_x, best_P):
+    """The Kalman filter through layers j0 … j1−1 with the hits fixed[j] (sorted-hit index,
+    −1: none): `_search` with every layer _MODE_FIXED (a hit beyond nsig σ or certainly
+    outside the active area is not attached), as one straight loop — the refits, fits and
+    transports of the extension call it ~5 times per track, and the combinatorial search's
+    set-up costs more than such a fit. Returns (hits attached, χ²), −1 hits if the χ² or
+    a station requirement fails (the same pruning as `_search`); best_path[j] (hit or −1)
+    and the deviation state/covariance at layer j1−1 in best_x/best_P."""
+    pred_x, post_x, pred_P, post_P, tmp, pht = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
+    x_init, P_init = ws[19], ws[20]
+    for i in range(5):
+        x_init[0, i] = x0[i]
+        for k in range(5):
+            P_init[0, i, k] = P0[i, k]
+    chi2 = 0.0
+    n_hits = 0
+    mask = 0
+    for d in range(j1 - j0):
+        j = j0 + d
+        if d == 0:
+            _predict(ref_F, ref_Q, j, x_init, P_init, 0, pred_x, pred_P, d, tmp)
+        else:
+            _predict(ref_F, ref_Q, j, post_x, post_P, d - 1, pred_x, pred_P, d, tmp)
+        c = f_cos[j]
+        s = f_sin[j]
+        h = fixed[j]
+        if h >= 0 and not _maybe_crossed(ref_s[j, 0] + pred_x[d, 0], ref_s[j, 1] + pred_x[d, 1],
+                                         pred_P[d, 0, 0], pred_P[d, 1, 1], f_acc, j):
+            h = -1
+        if h >= 0:
+            up = c * (ref_s[j, 0] + pred_x[d, 0]) + s * (ref_s[j, 1] + pred_x[d, 1])
+            sb = c * c * pred_P[d, 0, 0] + 2.0 * c * s * pred_P[d, 0, 1] + s * s * pred_P[d, 1, 1]
+            var = sb + hsig[h] * hsig[h]
+            r = hu[h] - up
+            if r * r / var >= nsig * nsig:
+                h = -1
+        if h >= 0:
+            _update(pred_x, pred_P, d, c, s, r, var, post_x, post_P, pht)
+            chi2 += r * r / var
+            n_hits += 1
+            mask |= f_bit[j]
+        else:
+            for i in range(5):
+                post_x[d, i] = pred_x[d, i]
+                for m in range(5):
+                    post_P[d, i, m] = pred_P[d, i, m]
+        best_path[j] = h
+        if chi2 > chi2_prune[min(n_hits, chi2_prune.shape[0] - 1)]:
+            return -1, chi2
+        if f_group_end[j] and (mask & f_need_end[j]) != f_need_end[j]:
+            return -1, chi2
+    d = j1 - j0 - 1
+    for i in range(5):
+        best_x[i] = post_x[d, i]
+        for m in range(5):
+            best_P[i, m] = post_P[d, i, m]
+    return n_hits, chi2
 
 
 def _hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> np.ndarray:
@@ -1282,7 +1349,8 @@ def _workspace(n_fwd, n_sf, n_x, max_nodes_q, max_entries, max_bins, n_cand):
           np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
           np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
           np.zeros(n_fwd, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
-          np.zeros(n_fwd, dtype=np.int64), np.zeros((n_fwd, _MAX_CHILDREN), dtype=np.int64))
+          np.zeros(n_fwd, dtype=np.int64), np.zeros((n_fwd, _MAX_CHILDREN), dtype=np.int64),
+          np.zeros((1, 5)), np.zeros((1, 5, 5)))
     W = (np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((6, 5, 5)),
          ws, np.full(n_fwd, -1, dtype=np.int64), np.zeros(n_fwd, dtype=np.int64),
          np.full(n_fwd, -1, dtype=np.int64), np.zeros(5), np.zeros((5, 5)), np.zeros(5),
@@ -1355,6 +1423,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
     u_s0 = np.zeros((n_utc_max, 5))
     u_ds0 = np.zeros((n_utc_max, 5))
     ut_hits = np.full(n_fwd, -1, dtype=np.int64)
+    no_hits = np.full(n_fwd, -1, dtype=np.int64)
     # Two passes (module docstring, step 6): the UT starts of every track, then the full-range
     # scan for the tracks without an extension, on the SciFi hits no good extension took
     n_tracks = t_ev.shape[0]
@@ -1411,14 +1480,11 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             if st == TRANSPORT_FAILED:
                 out_status[t] = STATUS_INVALID
                 continue
-            for j in range(n_fwd):
-                mode[j] = _MODE_OFF
             for i in range(5):
                 x0[i] = 0.0
             _velo_prior(opt, 0.0, opt[_O_WEAK_QPRIOR], P0)
-            _search(0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
-                    ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+            _fit_fixed(0, n_ut, no_hits, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end, f_need_end, ref_s,
+                       ref_F, ref_Q, x0, P0, 1.0, ut_prune, ws, path, cx, cP)
             for i in range(5):
                 s0[i] = ref_s[n_ut - 1, i] + cx[i]
                 ds0[i] = cP[i, 4] / cP[4, 4]
@@ -1426,9 +1492,8 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             _reference(ext, poly, tref, quad, a, f_layer, n_ut, n_ut, s_v, 0.0, qmax, ref_s, ref_F, ref_Q,
                        work, opt[_O_MODEL])
             _velo_prior(opt, qmax, opt[_O_WEAK_QPRIOR], P0)
-            _search(0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-                    f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0, 1.0, 1, 1, 0, 0, False, 0,
-                    ut_prune, iopt[_I_MAX_NODES], ws, path, cx, cP, top_none, 1e6)
+            _fit_fixed(0, n_ut, no_hits, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end, f_need_end, ref_s,
+                       ref_F, ref_Q, x0, P0, 1.0, ut_prune, ws, path, cx, cP)
             _conditional(cP, pc, 6)
             for i in range(6):
                 pc[6 + i] = (pc[6 + i] - pc[i]) / (qmax * qmax)
@@ -1461,17 +1526,14 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
                         n_c = 0
                         break
                     for j in range(n_ut):
-                        mode[j] = _MODE_FIXED
                         fixed[j] = top_ut[0][c, j]
                     for i in range(4):
                         x0[i] = 0.0
                     x0[4] = -q_c
                     _velo_prior(opt, q_noise, opt[_O_WEAK_QPRIOR], P0)
-                    _, n_c, chi_c = _search(
-                        0, n_ut, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-                        f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-                        opt[_O_UT_NSIG], 1, 1, 0, 0, False, 0, ut_prune, iopt[_I_MAX_NODES], ws, path, cx,
-                        cP, top_none, 1e6)
+                    n_c, chi_c = _fit_fixed(0, n_ut, fixed, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end,
+                                            f_need_end, ref_s, ref_F, ref_Q, x0, P0, opt[_O_UT_NSIG], ut_prune,
+                                            ws, path, cx, cP)
                     if n_c < iopt[_I_UT_MIN]:
                         break
                     q_c = ref_s[n_ut - 1, 4] + cx[4]
@@ -1633,19 +1695,14 @@ def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_b
         else:
             for j in range(n_ut):
                 fixed[j] = -1
-        for j in range(n_fwd):
-            mode[j] = _MODE_FIXED
-            if j >= n_ut:
-                fixed[j] = sf_path[j]
+        for j in range(n_ut, n_fwd):
+            fixed[j] = sf_path[j]
         for i in range(4):
             x0[i] = 0.0
         x0[4] = -q_best
         _velo_prior(opt, abs(q_best), opt[_O_WEAK_QPRIOR], P0)
-        _, n_fit, chi_f = _search(
-            0, n_fwd, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
-            f_need_end, ref_s, ref_F, ref_Q, x0, P0, -1, 0.0, 1.0,
-            opt[_O_NSIG], 1, 1, 0, 0, False, 0, sf_prune, iopt[_I_MAX_NODES], ws, path, bx, bP,
-            top_none, 1e6)
+        n_fit, chi_f = _fit_fixed(0, n_fwd, fixed, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end, f_need_end,
+                                  ref_s, ref_F, ref_Q, x0, P0, opt[_O_NSIG], sf_prune, ws, path, bx, bP)
         if n_fit < 1:
             continue
         n_u = 0
