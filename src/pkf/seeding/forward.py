@@ -45,8 +45,10 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    directions), the line through one entry of the first and one of the last layer that
    best collects the others; the best ``stereo_candidates`` are checked on the stereo
    layers (nearest u = x·cos α + y·sin α with x from the line, y from the start state);
-   key = χ²_x + Σ stereo Δχ² + window_sigmas² per missing layer. The best
-   ``max_clusters`` are followed: a reference trajectory at the cluster's q/p from the
+   key = χ²_x + Σ stereo Δχ² + window_sigmas² per missing layer; a cluster with a hit on
+   fewer than ``stereo_min_layers`` stereo layers is dropped (a true track has 5–6; this
+   removes most random x lines before the costly follow). The best ``max_clusters`` are
+   followed: a reference trajectory at the cluster's q/p from the
    VELO, the KF from the VELO prior through the start's UT hits (Δχ²-checked), a
    pseudo-measurement of x at the first SciFi x layer from the cluster's line (narrows
    the windows, not counted in χ²), then a depth-first combinatorial KF over the 12 SciFi
@@ -144,8 +146,8 @@ _MODE_OFF = 2
 _N_FOPT = 21
 (_I_UT_MIN, _I_UT_FIRST, _I_BRANCH, _I_MIN_X, _I_MAX_CLUSTERS, _I_SF_MIN, _I_FALLBACK,
  _I_CONFIRM_MIN, _I_MAX_NODES, _I_QUAD, _I_STATION_X, _I_UT_CANDIDATES, _I_STEREO_CANDIDATES,
- _I_NOUT_MIN, _I_UT_REFITS, _I_UT_BRANCH, _I_WINDOW_BINS, _I_TAKE_HITS) = range(18)
-_N_IOPT = 18
+ _I_NOUT_MIN, _I_UT_REFITS, _I_UT_BRANCH, _I_WINDOW_BINS, _I_TAKE_HITS, _I_STEREO_MIN) = range(19)
+_N_IOPT = 19
 
 
 @dataclass(frozen=True)
@@ -163,9 +165,9 @@ class ForwardOptions:
     ut_q_prior [0.5]           (1) σ of the q/p prior of the UT search [1/p_min]
     ut_window_sigmas [4]       (1) UT search windows [σ]
     ut_min_hits [3]            (1) UT hits (of 4) of a UT candidate
-    ut_first_branches [8]      (1) branches per layer until a first UT hit is attached
+    ut_first_branches [4]      (1) branches per layer until a first UT hit is attached
     ut_branch [2]              (1) branches per layer after it
-    ut_candidates [3]          (1) UT leaves re-fitted and used as starts
+    ut_candidates [2]          (1) UT leaves re-fitted and used as starts
     ut_refits [1]              (1) re-fits of a leaf around its own q/p
     ut_pvalue [1e-3]           (1) p-value cut of a re-fitted UT candidate
     hough_sigmas [4]           (2) q/p range around a UT estimate [σ]
@@ -180,7 +182,9 @@ class ForwardOptions:
     slope_ms [1.7]             (3) slope prior of the line: σ² = σtx²(start, given q/p) +
                                (slope_ms·q/p)² (scattering UT → SciFi) [MeV]
     line_chi2 [16]             (3) cut on the line χ²/ndf
-    stereo_candidates [24]     (3) clusters checked on the stereo layers
+    stereo_candidates [12]     (3) clusters checked on the stereo layers
+    stereo_min_layers [4]      (3) … and followed only with a hit within window_sigmas on at
+                               least this many stereo layers
     max_clusters [3]           (3) clusters followed by the combinatorial KF per scan
     pseudo_floor [0.3]         (3) added in quadrature to the pseudo-measurement σ [mm]
     window_sigmas [5]          (3, 4) SciFi windows and Δχ² cut [σ]
@@ -211,7 +215,7 @@ class ForwardOptions:
     ut_q_prior: float = 0.5
     ut_window_sigmas: float = 4.0
     ut_min_hits: int = 3
-    ut_first_branches: int = 8
+    ut_first_branches: int = 4
     ut_branch: int = 2
     ut_refits: int = 1
     ut_pvalue: float = 1e-3
@@ -234,8 +238,9 @@ class ForwardOptions:
     line_chi2: float = 16.0
     slope_ms: float = 1.7
     scifi_model_noise: float = 3000.0
-    ut_candidates: int = 3
-    stereo_candidates: int = 24
+    ut_candidates: int = 2
+    stereo_candidates: int = 12
+    stereo_min_layers: int = 4
     miss_penalty: float = 9.0
     good_pvalue: float = 0.01
     pvalue: float = 1e-4
@@ -314,6 +319,7 @@ class ForwardOptions:
         i[_I_UT_BRANCH] = self.ut_branch
         i[_I_WINDOW_BINS] = self.window_bins
         i[_I_TAKE_HITS] = int(self.take_hits)
+        i[_I_STEREO_MIN] = self.stereo_min_layers
         return f, i
 
 
@@ -1232,9 +1238,10 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, used, opt, 
         nl_, chi2l, alpha, beta = _cluster_fit(bin_start[b], bin_start[min(b + n_win, n_bins)], e_hit, e_t,
                                                e_li, e_order, hu, n_x, d_l, False, 0.0, x_z, sig2, w_beta,
                                                chosen, rx, cand_e, cand_r, cand_n)
-        sscore, _ = _stereo_score(loe, hu, hsig, used, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs,
-                                  sdxs, sys_, sdys, q_c, alpha, beta, x_z[0], sig2, pc, z_ut, nsig)
-        cl_key[best] += sscore
+        sscore, n_stereo = _stereo_score(loe, hu, hsig, used, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn,
+                                         n_nodes, sxs, sdxs, sys_, sdys, q_c, alpha, beta, x_z[0], sig2, pc,
+                                         z_ut, nsig)
+        cl_key[best] = cl_key[best] + sscore if n_stereo >= iopt[_I_STEREO_MIN] else 1e300
     for c_ in range(n_cl):
         if cl_npop[c_] >= 0:
             cl_key[c_] = 1e300  # not confirmed: not followed
