@@ -106,6 +106,7 @@ __all__ = [
     "fit_triplets",
     "fit_triplets_kernel",
     "fit_triplet_row",
+    "fit_triplet_kinks",
     "triplet_geometry_row",
     "fit_ms_row",
     "fit_hit_errors_row",
@@ -339,17 +340,16 @@ def solve_cubic(a3, a2, a1, a0, scale):
 
 
 @nb.njit(cache=True)
-def _fit_frame(h, b, weak):
-    """Rotation lab → fit frame, rows e1, e2, e3 (x′ = R·x): returns (ok, r00 … r22)."""
-    bmag = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+def _fit_frame(bx, by, bz, cx, cy, cz, weak):
+    """Rotation lab → fit frame, rows e1, e2, e3 (x′ = R·x), for the field (bx, by, bz) [T]
+    and the chord c = x2 − x0 [mm]: returns (ok, r00 … r22). Scalars only (array
+    arguments of a non-inlined call cost reference-count updates)."""
+    bmag = math.sqrt(bx * bx + by * by + bz * bz)
     if bmag > 0.0:
-        ux, uy, uz = b[0] / bmag, b[1] / bmag, b[2] / bmag
+        ux, uy, uz = bx / bmag, by / bmag, bz / bmag
     else:
         ux, uy, uz = 0.0, 1.0, 0.0
     if weak:
-        cx = h[2, 0] - h[0, 0]
-        cy = h[2, 1] - h[0, 1]
-        cz = h[2, 2] - h[0, 2]
         cn = math.sqrt(cx * cx + cy * cy + cz * cz)
         if cn == 0.0:
             return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
@@ -401,11 +401,11 @@ def _chord_gradients(cx, cy, cz):
 
 
 @nb.njit(cache=True)
-def _rotate(r, v0, v1, v2):
-    """(r·v) for a rotation given as 9 numbers (row-major) in a 1-D array slice."""
-    return (r[0] * v0 + r[1] * v1 + r[2] * v2,
-            r[3] * v0 + r[4] * v1 + r[5] * v2,
-            r[6] * v0 + r[7] * v1 + r[8] * v2)
+def _rotate(r00, r01, r02, r10, r11, r12, r20, r21, r22, v0, v1, v2):
+    """(R·v) for a rotation R given as 9 numbers (row-major)."""
+    return (r00 * v0 + r01 * v1 + r02 * v2,
+            r10 * v0 + r11 * v1 + r12 * v2,
+            r20 * v0 + r21 * v1 + r22 * v2)
 
 
 @nb.njit(cache=True)
@@ -415,11 +415,14 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     b: field (3,) [T] at the middle hit; hv: hit variances (3×3, [hit, x/y/z], mm²,
     lab frame, uncorrelated). See `triplet_geometry` for the quantities.
     """
-    g[:] = 0.0
+    # element loops, not slices: a slice is an array view (reference counting)
+    for u in range(g.shape[0]):
+        g[u] = 0.0
     status = 0
     bmag = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
     weak = bmag < b_threshold
-    ok, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _fit_frame(h, b, weak)
+    ok, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _fit_frame(
+        b[0], b[1], b[2], h[2, 0] - h[0, 0], h[2, 1] - h[0, 1], h[2, 2] - h[0, 2], weak)
     if not ok:
         g[G_STATUS] = STATUS_DEGENERATE
         return
@@ -432,11 +435,10 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     g[G_ROT + 6] = r20
     g[G_ROT + 7] = r21
     g[G_ROT + 8] = r22
-    rot = g[G_ROT:G_ROT + 9]
     ax, ay, az = h[1, 0] - h[0, 0], h[1, 1] - h[0, 1], h[1, 2] - h[0, 2]
-    c01x, c01y, c01z = _rotate(rot, ax, ay, az)
+    c01x, c01y, c01z = _rotate(r00, r01, r02, r10, r11, r12, r20, r21, r22, ax, ay, az)
     ax, ay, az = h[2, 0] - h[1, 0], h[2, 1] - h[1, 1], h[2, 2] - h[1, 2]
-    c12x, c12y, c12z = _rotate(rot, ax, ay, az)
+    c12x, c12y, c12z = _rotate(r00, r01, r02, r10, r11, r12, r20, r21, r22, ax, ay, az)
     c02x = c01x + c12x
     c02y = c01y + c12y
     d01 = math.hypot(c01x, c01y)
@@ -517,8 +519,8 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
         else:
             jpx, jpy, jtx, jty, jtz = pb_x, pb_y, tb_x, tb_y, tb_z
         for m in range(3):
-            lp = jpx * rot[m] + jpy * rot[3 + m]
-            lt = jtx * rot[m] + jty * rot[3 + m] + jtz * rot[6 + m]
+            lp = jpx * g[G_ROT + m] + jpy * g[G_ROT + 3 + m]
+            lt = jtx * g[G_ROT + m] + jty * g[G_ROT + 3 + m] + jtz * g[G_ROT + 6 + m]
             vpp += lp * lp * hv[k, m]
             vpt += lp * lt * hv[k, m]
             vtt += lt * lt * hv[k, m]
@@ -873,15 +875,12 @@ def _fitted_theta(phi, s, z, theta, turn, kap):
 
 
 @nb.njit(cache=True)
-def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out):
-    """Full fit of one triplet from its geometry row; writes `out` (N_FIT_COLUMNS).
-
-    form = FORM_RADIUS: App. C (or eq. 1 without hit errors) where |B| ≥ b_threshold,
-    the curvature form below it (and as a fallback where R3D is not defined, e.g.
-    collinear hits in a field); FORM_CURVATURE: the curvature form everywhere.
-    out = (κ, var κ, q/p, var q/p, χ², ndf, Φ_MS, Θ_MS, var Φ_MS, var Θ_MS, tx, ty,
-    σ_MS, status); see `TripletFit`.
-    """
+def fit_triplet_kinks(g, x_over_x0, mass, b_threshold, p_min, form, straight):
+    """The fit of `fit_triplet_row` without the direction at the middle hit (for pattern
+    recognition, which needs only κ and χ²; the direction costs seven more trigonometric
+    calls). Returns (κ [1/mm], var κ [1/mm²], χ², ndf, σ_MS [rad], Φ_MS, Θ_MS [rad],
+    status) exactly as `fit_triplet_row` stores them (its status may add
+    STATUS_BACKWARD)."""
     status = int(g[G_STATUS])
     ndf = 1
     kap = 0.0
@@ -921,7 +920,25 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
                 kap = 0.0
             kphi = g[G_PSI_PHI] + g[G_RHO_PHI] * kap
             ktheta = g[G_PSI_THETA] + g[G_RHO_THETA] * kap
-    out[:] = 0.0
+    return kap, var_k, chi2, ndf, sms, kphi, ktheta, status
+
+
+@nb.njit(cache=True)
+def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out):
+    """Full fit of one triplet from its geometry row; writes `out` (N_FIT_COLUMNS).
+
+    form = FORM_RADIUS: App. C (or eq. 1 without hit errors) where |B| ≥ b_threshold,
+    the curvature form below it (and as a fallback where R3D is not defined, e.g.
+    collinear hits in a field); FORM_CURVATURE: the curvature form everywhere.
+    out = (κ, var κ, q/p, var q/p, χ², ndf, Φ_MS, Θ_MS, var Φ_MS, var Θ_MS, tx, ty,
+    σ_MS, status); see `TripletFit`.
+    """
+    kap, var_k, chi2, ndf, sms, kphi, ktheta, status = fit_triplet_kinks(
+        g, x_over_x0, mass, b_threshold, p_min, form, straight)
+    bmag = g[G_BMAG]
+    turn = g[G_TURN]
+    for u in range(out.shape[0]):  # element loop, not a slice (a view)
+        out[u] = 0.0
     out[F_KAPPA] = kap
     out[F_VAR_KAPPA] = var_k
     out[F_CHI2] = chi2
@@ -961,10 +978,9 @@ def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out)
     dpx = st * math.cos(phim)
     dpy = st * math.sin(phim)
     dpz = math.cos(thm)
-    r = g[G_ROT:G_ROT + 9]
-    dx = r[0] * dpx + r[3] * dpy + r[6] * dpz
-    dy = r[1] * dpx + r[4] * dpy + r[7] * dpz
-    dz = r[2] * dpx + r[5] * dpy + r[8] * dpz
+    dx = g[G_ROT + 0] * dpx + g[G_ROT + 3] * dpy + g[G_ROT + 6] * dpz
+    dy = g[G_ROT + 1] * dpx + g[G_ROT + 4] * dpy + g[G_ROT + 7] * dpz
+    dz = g[G_ROT + 2] * dpx + g[G_ROT + 5] * dpy + g[G_ROT + 8] * dpz
     if abs(dz) > 1e-12:
         out[F_TX] = dx / dz
         out[F_TY] = dy / dz

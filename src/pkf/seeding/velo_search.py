@@ -31,7 +31,7 @@ Algorithm (per event)
 4. **Third hit and triplet fit.** The line a → b is extrapolated to the following
    modules of the half; hits within ``window_sigmas`` standard deviations (hit errors
    propagated along the line; Highland scattering at p_min at b and at every crossed
-   module) are fitted with the triplet fit (``triplet_fit.fit_triplet_row``, curvature
+   module) are fitted with the triplet fit (``triplet_fit.fit_triplet_kinks``, curvature
    form at the middle hit: the VELO field, a few mT, is below ``b_threshold``, so σ_MS
    is Highland at ``p_min`` = 1 GeV and, with ``straight`` (default), κ ≡ 0 and
    ndf = 2). A triplet is kept if its χ² p-value exceeds ``pvalue`` (1e-3). The search
@@ -106,17 +106,11 @@ from pkf.geometry.detector import KIND_PIXEL, SIDE_LEFT, SIDE_RIGHT, SUBDETECTOR
 from pkf.seeding.triplet_fit import (
     DEFAULT_B_THRESHOLD,
     DEFAULT_P_MIN,
-    F_CHI2,
-    F_KAPPA,
-    F_NDF,
-    F_STATUS,
-    F_VAR_KAPPA,
     FORM_CURVATURE,
     MASS_PION,
-    N_FIT_COLUMNS,
     N_GEOMETRY_COLUMNS,
     STATUS_INVALID,
-    fit_triplet_row,
+    fit_triplet_kinks,
     highland_sigma,
     triplet_geometry_row,
 )
@@ -399,13 +393,15 @@ def _wrap(a):
 
 
 @nb.njit("Tuple((int64[:, ::1], float64[:, ::1], int64[:, ::1]))"
-          "(int64[:, ::1], float64[:, ::1], int64[:, ::1])", cache=True)
-def _grow_triplets(th, tf, ti):
-    """Triplet tables with twice the capacity (rows copied)."""
+          "(int64[:, ::1], float64[:, ::1], int64[:, ::1], int64)", cache=True)
+def _grow_triplets(th, tf, ti, need):
+    """Triplet tables with room for at least `need` rows (twice the capacity or more;
+    rows copied)."""
     cap = th.shape[0]
-    th2 = np.empty((2 * cap, th.shape[1]), dtype=np.int64)
-    tf2 = np.empty((2 * cap, tf.shape[1]))
-    ti2 = np.empty((2 * cap, ti.shape[1]), dtype=np.int64)
+    new = max(2 * cap, need)
+    th2 = np.empty((new, th.shape[1]), dtype=np.int64)
+    tf2 = np.empty((new, tf.shape[1]))
+    ti2 = np.empty((new, ti.shape[1]), dtype=np.int64)
     for r in range(cap):
         for u in range(th.shape[1]):
             th2[r, u] = th[r, u]
@@ -454,15 +450,12 @@ def _best_continuation_chi2(th, tf, ti, head_first, b, c, default):
     return best if best < np.inf else float(default)
 
 
-@nb.njit("Tuple((int64, int64[:, ::1], float64[:, ::1], int64[:, ::1]))"
-         "(int64[:, ::1], float64[:, ::1], int64[:, ::1], int64, int64[::1], int64, int64,"
-         " int64, float64, float64, float64, int64, float64[::1], boolean)", cache=True)
+@nb.njit("int64(int64[:, ::1], float64[:, ::1], int64[:, ::1], int64, int64[::1], int64,"
+         " int64, int64, float64, float64, float64, int64, float64[::1], boolean)", cache=True)
 def _add_triplet(th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd, chi2_cut, straight):
-    """Store triplet (a, b, c) and link it to its best continuation (b, c, ·) by dynamic
-    programming: longest chain, then lowest combined χ² (eqs. 5–6); a link needs the
-    pair's combined χ² below the cut. Returns (nt, th, tf, ti) (arrays may grow)."""
-    if nt >= th.shape[0]:
-        th, tf, ti = _grow_triplets(th, tf, ti)
+    """Store triplet (a, b, c) as row nt (the caller made room) and link it to its best
+    continuation (b, c, ·) by dynamic programming: longest chain, then lowest combined χ²
+    (eqs. 5–6); a link needs the pair's combined χ² below the cut. Returns nt + 1."""
     t = nt
     th[t, 0] = a
     th[t, 1] = b
@@ -514,13 +507,13 @@ def _add_triplet(th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd, chi2_cut,
         ti[t, _T_LEN] = 1
     ti[t, _T_LINK] = head_first[a]
     head_first[a] = t
-    return nt + 1, th, tf, ti
+    return nt + 1
 
 
 @nb.njit(cache=True)
 def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut, mass,
                   b_threshold, p_min, ms_scale, straight, window_sigmas, margin, max_missing,
-                  hbuf, vbuf, bbuf, gbuf, fbuf):
+                  hbuf, vbuf, bbuf, gbuf):
     """Extend an accepted track trk[lo:hi] (hit rows in z order) downstream, then
     upstream: from its last (first) two hits, the line is followed through the next
     modules, allowing up to `max_missing` crossed modules without a hit; the free hit
@@ -607,12 +600,11 @@ def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi
                                 bbuf[1] = lt[j, _L_BY]
                                 bbuf[2] = lt[j, _L_BZ]
                                 triplet_geometry_row(hbuf, bbuf, vbuf, b_threshold, gbuf)
-                                fit_triplet_row(gbuf, lt[j, _L_X0], mass, b_threshold, p_min,
-                                                FORM_CURVATURE, straight, fbuf)
+                                _k, _vk, c2, nd, _s, _kp, _kt, st = fit_triplet_kinks(
+                                    gbuf, lt[j, _L_X0], mass, b_threshold, p_min,
+                                    FORM_CURVATURE, straight)
                                 n_fits += 1
-                                c2 = fbuf[F_CHI2]
-                                nd = int(fbuf[F_NDF])
-                                ok = (int(fbuf[F_STATUS]) & STATUS_INVALID) == 0
+                                ok = (st & STATUS_INVALID) == 0
                                 if ok and c2 <= chi2_cut[nd] and c2 < best_c2:
                                     best_c = c
                                     best_c2 = c2
@@ -646,7 +638,7 @@ def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi
 @nb.njit(cache=True)
 def _fill_gaps(trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut,
                mass, b_threshold, p_min, straight, window_sigmas, margin,
-               hbuf, vbuf, bbuf, gbuf, fbuf):
+               hbuf, vbuf, bbuf, gbuf):
     """Add free hits on the modules crossed between consecutive hits of trk[lo:hi] (the
     other VELO half in the overlap strip, or hits the chain skipped): the point is
     interpolated between the two hits and the free hit with the best χ² of the triplet
@@ -715,12 +707,11 @@ def _fill_gaps(trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, c
                     bbuf[1] = lt[k, _L_BY]
                     bbuf[2] = lt[k, _L_BZ]
                     triplet_geometry_row(hbuf, bbuf, vbuf, b_threshold, gbuf)
-                    fit_triplet_row(gbuf, lt[k, _L_X0], mass, b_threshold, p_min,
-                                    FORM_CURVATURE, straight, fbuf)
+                    _k, _vk, c2, nd, _s, _kp, _kt, st = fit_triplet_kinks(
+                        gbuf, lt[k, _L_X0], mass, b_threshold, p_min, FORM_CURVATURE,
+                        straight)
                     n_fits += 1
-                    c2 = fbuf[F_CHI2]
-                    nd = int(fbuf[F_NDF])
-                    ok = (int(fbuf[F_STATUS]) & STATUS_INVALID) == 0
+                    ok = (st & STATUS_INVALID) == 0
                     if ok and c2 <= chi2_cut[nd] and c2 < best_c2:
                         best_c = c
                         best_c2 = c2
@@ -856,24 +847,37 @@ def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
 
 
 @nb.njit(cache=True)
-def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut, mass,
-                     b_threshold, p_min, straight, max_missing, z_lo, z_hi, tol0, tol1,
-                     window_sigmas, margin, keep_best, all_skips, th, tf, ti, head_first,
-                     dbl_a, dbl_m, hbuf, vbuf, bbuf, gbuf, fbuf, counters):
+def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, bin_off, used,
+                     chi2_cut, mass, b_threshold, p_min, straight, max_missing, z_lo, z_hi,
+                     tol0, tol1, window_sigmas, margin, keep_best, all_skips, th, tf, ti,
+                     head_first, dbl_a, dbl_m, hbuf, vbuf, bbuf, gbuf, counters):
     """Triplet search and merging of event e (module docstring, steps 3–5) on the unused
     hits: doublets, third hits, triplet fits, links to the best continuation.
-    side_only: triplets on one VELO half. Returns (number of triplets, th, tf, ti).
-    counters[0] += doublets tried, counters[1] += triplet fits."""
-    nt = 0
+    side_only: triplets on one VELO half. Starts at middle module j_start, at its row
+    b_start (or its first row if b_start is below it), with nt triplets stored.
+
+    The triplet tables th, tf, ti are never reassigned here (a loop-carried array
+    variable costs reference-count updates in every iteration): before the third hits
+    of a middle hit b the search checks that the tables have room for b's triplets, and
+    if not it returns early, before any side effect of b, for the caller to grow them
+    and resume at b. Returns (nt, j, b, need): need = 0 when the event is done, else the
+    rows needed to resume at module j, row b. counters[0] += doublets tried,
+    counters[1] += triplet fits."""
+    max_module_hits = 0
+    for k in range(nl):
+        max_module_hits = max(max_module_hits, lay_off[e * nl + k + 1] - lay_off[e * nl + k])
     # ---------------- triplet search: middle modules from the last backwards ----
-    for j in range(nl - 2, 0, -1):
+    for j in range(j_start, 0, -1):
         zb_layer = lt[j, _L_Z]
         bx_j = lt[j, _L_BX]
         by_j = lt[j, _L_BY]
         bz_j = lt[j, _L_BZ]
         x0_j = lt[j, _L_X0]
         sms_j = lt[j, _L_SIGMA_MS]
-        for b in range(lay_off[e * nl + j], lay_off[e * nl + j + 1]):
+        b_first = lay_off[e * nl + j]
+        if j == j_start:
+            b_first = max(b_first, b_start)
+        for b in range(b_first, lay_off[e * nl + j + 1]):
             if used[b]:
                 continue
             xb = hit[b, _H_X]
@@ -884,6 +888,7 @@ def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut
             # ---- doublets (a, b): earlier modules, nearest first, until
             # max_missing + 1 modules that certainly cover b's (x, y) were searched
             n_dbl = 0
+            n_tried = 0
             count = 0
             for i in range(j - 1, -1, -1):
                 if count > max_missing:
@@ -916,8 +921,10 @@ def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut
                             continue
                         if abs(_wrap(hit[a, _H_PHI] - phib)) * min(ra, rb) > tol:
                             continue
-                        counters[0] += 1
+                        n_tried += 1
                         # modules between a and b that the line certainly crosses
+                        # (the slopes are computed in the loop: with side_only most
+                        # doublets have no module of their half in between)
                         xa = hit[a, _H_X]
                         ya = hit[a, _H_Y]
                         za = hit[a, _H_Z]
@@ -940,7 +947,13 @@ def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut
                         dbl_m[n_dbl] = m
                         n_dbl += 1
             # ---- third hits: doublets without a skipped module first; those with
-            # a skip only if the former gave no triplet
+            # a skip only if the former gave no triplet. Room for b's triplets first:
+            # a doublet gives at most one (keep_best: the module loop stops at the first
+            # module that gave one) or the hits of one module.
+            need = nt + n_dbl * (1 if keep_best else max_module_hits)
+            if need > th.shape[0]:
+                return nt, j, b, need
+            counters[0] += n_tried
             found_direct = False
             for q in range(2 * n_dbl):
                 skip_pass = q >= n_dbl
@@ -1032,13 +1045,11 @@ def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut
                                 bbuf[1] = by_j
                                 bbuf[2] = bz_j
                                 triplet_geometry_row(hbuf, bbuf, vbuf, b_threshold, gbuf)
-                                fit_triplet_row(gbuf, x0_j, mass, b_threshold, p_min,
-                                                FORM_CURVATURE, straight, fbuf)
+                                kap, vk, c2, nd, _s, _kp, _kt, st = fit_triplet_kinks(
+                                    gbuf, x0_j, mass, b_threshold, p_min, FORM_CURVATURE,
+                                    straight)
                                 counters[1] += 1
-                                c2 = fbuf[F_CHI2]
-                                nd = int(fbuf[F_NDF])
-                                if (int(fbuf[F_STATUS]) & STATUS_INVALID) != 0 or not (
-                                        c2 <= chi2_cut[nd]):
+                                if (st & STATUS_INVALID) != 0 or not (c2 <= chi2_cut[nd]):
                                     continue
                                 if keep_best:
                                     # rank by the χ² of the four hits (a, b, c, d) with
@@ -1049,16 +1060,16 @@ def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut
                                         best_score = score
                                         best_c = c
                                         best_c2 = c2
-                                        best_kap = fbuf[F_KAPPA]
-                                        best_vk = fbuf[F_VAR_KAPPA]
+                                        best_kap = kap
+                                        best_vk = vk
                                         best_nd = nd
                                     continue
-                                nt, th, tf, ti = _add_triplet(
-                                    th, tf, ti, nt, head_first, a, b, c, c2, fbuf[F_KAPPA],
-                                    fbuf[F_VAR_KAPPA], nd, chi2_cut, straight)
+                                nt = _add_triplet(
+                                    th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd,
+                                    chi2_cut, straight)
                                 nacc += 1
                         if best_c >= 0:
-                            nt, th, tf, ti = _add_triplet(
+                            nt = _add_triplet(
                                 th, tf, ti, nt, head_first, a, b, best_c, best_c2, best_kap,
                                 best_vk, best_nd, chi2_cut, straight)
                             nacc += 1
@@ -1074,14 +1085,14 @@ def _search_triplets(e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut
                     m2 += qk * zk * zk
                 if nacc > 0 and not skip_pass:
                     found_direct = True
-    return nt, th, tf, ti
+    return nt, 0, 0, 0
 
 
 @nb.njit(cache=True)
 def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi2_cut,
                chain_cut, mass, b_threshold, p_min, straight, window_sigmas, margin,
                min_hits, max_shared, fill_gaps, extend, extend_missing, extend_p_min,
-               ms_scale, both_halves, trk, tmp, hbuf, vbuf, bbuf, gbuf, fbuf, counters,
+               ms_scale, both_halves, trk, tmp, hbuf, vbuf, bbuf, gbuf, counters,
                o_event, o_off, o_f, o_hits, n_out, n_out_hits):
     """Candidates (chains that are nobody's continuation), arbitration, gap filling,
     extension and first states of event e (module docstring, steps 6–8); appends the
@@ -1151,7 +1162,7 @@ def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi
             hi, c2x, ndx, nfx = _fill_gaps(
                 trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut,
                 mass, b_threshold, p_min, straight, window_sigmas, margin,
-                hbuf, vbuf, bbuf, gbuf, fbuf)
+                hbuf, vbuf, bbuf, gbuf)
             c2 += c2x
             nd += ndx
             counters[1] += nfx
@@ -1160,7 +1171,7 @@ def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi
                 trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut, mass,
                 b_threshold, extend_p_min, ms_scale, straight, window_sigmas, margin,
                 extend_missing,
-                hbuf, vbuf, bbuf, gbuf, fbuf)
+                hbuf, vbuf, bbuf, gbuf)
             c2 += c2x
             nd += ndx
             counters[1] += nfx
@@ -1211,7 +1222,6 @@ def _velo_search_kernel(lay_off, n_events, nl, hit, hlay, lt, chi2_cut, chain_cu
     vbuf = np.zeros((3, 3))
     bbuf = np.zeros(3)
     gbuf = np.zeros(N_GEOMETRY_COLUMNS)
-    fbuf = np.zeros(N_FIT_COLUMNS)
     dbl_a = np.empty(4096, dtype=np.int64)
     dbl_m = np.empty(4096, dtype=np.int64)
     trk = np.empty(2 * nl + 4, dtype=np.int64)
@@ -1236,17 +1246,24 @@ def _velo_search_kernel(lay_off, n_events, nl, hit, hlay, lt, chi2_cut, chain_cu
         for pass_ in range(2 if (same_side and second_pass) else 1):
             side_only = same_side and pass_ == 0
             both_halves = same_side and pass_ == 1
-            nt, th, tf, ti = _search_triplets(
-                e, nl, side_only, lay_off, hit, lt, bin_off, used, chi2_cut, mass,
-                b_threshold, p_min, straight, max_missing, z_lo, z_hi, tol0, tol1,
-                window_sigmas, margin, keep_best, all_skips, th, tf, ti, head_first,
-                dbl_a, dbl_m, hbuf, vbuf, bbuf, gbuf, fbuf, counters)
+            nt = 0
+            j = nl - 2
+            b = -1
+            while True:
+                nt, j, b, need = _search_triplets(
+                    e, nl, side_only, j, b, nt, lay_off, hit, lt, bin_off, used, chi2_cut,
+                    mass, b_threshold, p_min, straight, max_missing, z_lo, z_hi, tol0, tol1,
+                    window_sigmas, margin, keep_best, all_skips, th, tf, ti, head_first,
+                    dbl_a, dbl_m, hbuf, vbuf, bbuf, gbuf, counters)
+                if need == 0:
+                    break
+                th, tf, ti = _grow_triplets(th, tf, ti, need)
             counters[2] += nt
             o_event, o_off, o_f, o_hits, n_out, n_out_hits = _arbitrate(
                 e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi2_cut,
                 chain_cut, mass, b_threshold, p_min, straight, window_sigmas, margin,
                 min_hits, max_shared, fill_gaps, extend, extend_missing, extend_p_min,
-                ms_scale, both_halves, trk, tmp, hbuf, vbuf, bbuf, gbuf, fbuf, counters,
+                ms_scale, both_halves, trk, tmp, hbuf, vbuf, bbuf, gbuf, counters,
                 o_event, o_off, o_f, o_hits, n_out, n_out_hits)
             for h in range(ev_lo, ev_hi):
                 head_first[h] = -1
