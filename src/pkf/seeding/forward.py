@@ -105,6 +105,7 @@ from scipy.stats import chi2 as chi2_dist
 from pkf.errors import InputError
 from pkf.fit.parametrized import STEP_SCIFI, STEP_UT, STEP_UT_TO_SCIFI, STEP_VELO_TO_UT
 from pkf.geometry.detector import SUBDETECTORS, Geometry
+from pkf.jit import NO_REFCOUNT
 from pkf.params.ut_to_scifi import META_NX, META_NY, META_P_MIN, META_SIZE
 from pkf.seeding.forward_steps import (
     TRANSPORT_FAILED,
@@ -370,7 +371,7 @@ class ForwardTracks:
 # Kalman-filter pieces (deviation δ from a reference trajectory; H = [cos α, sin α, 0, 0, 0])
 # ------------------------------------------------------------------------------------
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _predict(F3, Q3, j, X, P3, a, X_out, P3_out, b, tmp):
     """X_out[b] = F·X[a], P3_out[b] = F·P3[a]·Fᵀ + Q with F = F3[j], Q = Q3[j], for the
     parametrized steps: q/p is transported unchanged (F row 4 = e₄) and has no noise
@@ -403,7 +404,7 @@ def _predict(F3, Q3, j, X, P3, a, X_out, P3_out, b, tmp):
     P3_out[b, 4, 4] = P3[a, 4, 4]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _update(X, P3, d, c, s, r, var, X_out, P3_out, pht):
     """Strip update of state d with residual r and residual variance var = H·P·Hᵀ + σ²."""
     for i in range(5):
@@ -415,7 +416,7 @@ def _update(X, P3, d, c, s, r, var, X_out, P3_out, pht):
             P3_out[d, i, m] = P3[d, i, m] - k * pht[m]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _velo_prior(opt, q_noise, sigma_q, P):
     for i in range(5):
         for k in range(5):
@@ -429,7 +430,7 @@ def _velo_prior(opt, q_noise, sigma_q, P):
     P[4, 4] = sigma_q * sigma_q
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _reference(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_v, q, q_noise, ref_s, ref_F, ref_Q,
                work, opt_model):
     """Reference trajectory from VELO layer a through forward layers 0 … j_end−1 at
@@ -449,7 +450,7 @@ def _reference(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_v, q, q_noise, r
     return st
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _maybe_crossed(x, y, vx, vy, acc, j):
     """False if (x, y) with variances (vx, vy) is outside the active area acc[j] (half_x,
     half_y, hole radius, hole half_x, hole half_y) by more than 3σ."""
@@ -466,7 +467,7 @@ def _maybe_crossed(x, y, vx, vy, acc, j):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit, f_group_end,
             f_need_end, ref_s, ref_F, ref_Q, x0, P0, pm_depth, pm_value, pm_var,
             nsig, first_branches, max_branch, max_skip, min_hits, skip_first, need, chi2_prune,
@@ -706,7 +707,7 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
     return best_n, best_nf, best_chi
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _fit_fixed(j0, j1, fixed, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end, f_need_end, ref_s, ref_F,
                ref_Q, x0, P0, nsig, chi2_prune, ws, best_path, best_x, best_P):
     """The Kalman filter through layers j0 … j1−1 with the hits fixed[j] (sorted-hit index,
@@ -781,7 +782,7 @@ def _hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> 
     return np.ascontiguousarray(np.vstack([q, t]))
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _t_of_q(q, tg):
     """Hough coordinate of q/p in units of the local tolerance τ(q): piecewise linear
     through the breakpoints tg (each interval's bin width lies between τ at its ends;
@@ -799,7 +800,7 @@ def _t_of_q(q, tg):
     return t if q >= 0.0 else -t
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _q_of_t(t, tg):
     a = abs(t)
     lo = 0
@@ -814,7 +815,7 @@ def _q_of_t(t, tg):
     return q if t >= 0.0 else -q
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _hermite(x0, x1, d0, d1, h, u):
     """Cubic Hermite interpolation on [x0, x1] (length h, derivatives d0, d1) at u ∈ [0, 1]."""
     u2 = u * u
@@ -823,7 +824,7 @@ def _hermite(x0, x1, d0, d1, h, u):
             + (u3 - u2) * h * d1)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _node_interp(qn, n_nodes, vals, ders, col, q):
     """x(q) on SciFi layer `col` by cubic Hermite interpolation of the nodes (linear
     outside) and dx/dq by linear interpolation of the node derivatives."""
@@ -841,12 +842,12 @@ def _node_interp(qn, n_nodes, vals, ders, col, q):
     return v, ders[k, col] + u * (ders[k + 1, col] - ders[k, col])
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _pvalue_ok(chi2, n_meas, cut):
     return chi2 <= cut[min(n_meas, cut.shape[0] - 1)]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _popcount(m):
     n = 0
     while m:
@@ -855,7 +856,7 @@ def _popcount(m):
     return n
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _conditional(P, pc, k):
     """Covariance of (x, tx) and (y, ty) given q/p: pc[k … k+5] = xx, x·tx, tx·tx, yy, y·ty, ty·ty."""
     pc[k] = P[0, 0] - P[0, 4] ** 2 / P[4, 4]
@@ -866,7 +867,7 @@ def _conditional(P, pc, k):
     pc[k + 5] = P[3, 3] - P[3, 4] ** 2 / P[4, 4]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _stereo_score(loe, hu, hsig, used, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn, n_nodes, sxs, sdxs,
                   sys_, sdys, q_c, alpha, beta, z0, sig2, pc, z_ut, nsig):
     """Stereo confirmation of a q/p cluster: on every SciFi stereo layer the nearest hit
@@ -913,7 +914,7 @@ def _stereo_score(loe, hu, hsig, used, n_ut, n_fwd, f_cos, f_sin, f_sig, f_z, qn
 _MAX_PER_LAYER = 6  # entries per x layer considered in a cluster (nearest to the trajectory)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _line_fit(n_x, chosen, rx, x_z, sig2, w_beta):
     """Least-squares line rx = α + β·(z − z_0) through the chosen layers with the prior
     β ~ N(0, 1/w_beta). Returns (n, χ², α, β)."""
@@ -949,7 +950,7 @@ def _line_fit(n_x, chosen, rx, x_z, sig2, w_beta):
     return n, chi2, alpha, beta
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z, sig2, w_beta, chosen,
                  rx, cand_e, cand_r, cand_n):
     """Straight-line test of a q/p cluster in the SciFi x layers.
@@ -1034,7 +1035,7 @@ def _cluster_fit(kb, ke, e_hit, e_t, e_li, e_order, hu, n_x, x_c, lin, t_c, x_z,
     return _line_fit(n_x, chosen, rx, x_z, sig2, w_beta)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, used, opt, iopt, cuts, tgrid, s0, ds0, pc,
                   q_lo, q_hi, ut_hits, W, cand):
     """Steps 2–3: q/p scan of the SciFi x layers over [q_lo, q_hi], then the combinatorial
@@ -1659,7 +1660,7 @@ def _extend_kernel(ext, poly, tref, geo, t_ev, t_state, t_layer, lay_off, hu, hs
             out_nut[t] = n_h
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _finalize(ext, poly, tref, quad, a, f_layer, n_ut, n_fwd, s_v, q_best, var_best, sf_path,
               ut_hits, use_ut_hits, mode, fixed, loe, hu, hsig, used, f_cos, f_sin, f_sig, f_acc, f_bit,
               f_group_end, f_need_end, ref_s, ref_F, ref_Q, work, x0, P0, opt, iopt, ut_prune,

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from pkf.jit import NO_REFCOUNT
 from pkf.params import formulas
 from pkf.params.ut_to_scifi import (
     META_BEND,
@@ -55,7 +56,7 @@ from pkf.params.ut_to_scifi import (
 # The per-layer formula (pkf.params.formulas), compiled again for inlining: the search calls
 # it ~10⁵ times per event. The rare, large steps (VELO→UT, the table) stay ordinary calls:
 # inlining them into the step dispatch makes every step ~5× slower.
-_INLINE = dict(cache=True, inline="always")
+_INLINE = dict(cache=True, inline="always", **NO_REFCOUNT)
 layer_step = nb.njit(**_INLINE)(getattr(formulas.layer_step, "py_func", formulas.layer_step))
 velo_step = formulas.velo_step
 velo_to_ut_step = formulas.velo_to_ut_step
@@ -67,7 +68,7 @@ TRANSPORT_FAILED = 2  # an unphysical step (|tx/N| ≥ 1 after the VELO→UT kin
 TRANSPORT_BELOW_P_MIN = 4  # the UT→SciFi table was continued beyond |w| = 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def table_localize(meta, coef, x, y, poly, ref):
     """Interpolate the UT→SciFi coefficients (paper eqs. 22–23) at (x/z, y/z) of z_from.
 
@@ -100,7 +101,7 @@ def table_localize(meta, coef, x, y, poly, ref):
     ref[1] = y
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def table_step(meta, poly, ref, eloss, s_in, s_out, jac, quadratic):
     """Paper eq. 21 from the last UT layer to the first SciFi layer with localised
     coefficients (`table_localize`). Writes s_out (5) and jac = ∂out/∂in (5×5).
@@ -218,7 +219,7 @@ def table_step(meta, poly, ref, eloss, s_in, s_out, jac, quadratic):
     return status
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
 def _noise_at(noise_par, slot, s, q_noise, dz, s_tmp, jac, out):
     """Paper eq. 11 for the step leaving `slot`, at the slopes of s and |q/p| = q_noise,
     plus the energy-loss straggling before the step (q/p noise (p̃5·q²)² through the
@@ -234,7 +235,7 @@ def _noise_at(noise_par, slot, s, q_noise, dz, s_tmp, jac, out):
                 out[i, k] += var_qop * jac[i, 4] * jac[k, 4]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def reference_trajectory(ext, poly, ref, quadratic, a, f_layer, n_ut, j_end, s_start, q_noise,
                          ref_s, ref_F, ref_Q, s_tmp):
     """Transport s_start (5, at VELO layer a) to the forward layers f_layer[0 … j_end−1]
@@ -279,7 +280,7 @@ def reference_trajectory(ext, poly, ref, quadratic, a, f_layer, n_ut, j_end, s_s
     return status
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def scan_states(ext, poly, ref, quadratic, l_from, sf_layers, s0, ds0, q_nodes, xs, dxs, ys, dys,
                 work):
     """States on the SciFi layers for each q/p node, from the last UT layer l_from.

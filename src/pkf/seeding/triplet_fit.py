@@ -73,6 +73,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
+from pkf.jit import NO_REFCOUNT
 from pkf.physics.materials import highland_theta0
 from pkf.physics.transport import C_LIGHT
 from pkf.simulation.species import MASS_PION
@@ -187,7 +188,7 @@ N_FIT_COLUMNS = len(FIT_COLUMNS)
 # ------------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _x_over_sin(x):
     """x/sin x for 0 ≤ x < π (→ 1 at x = 0)."""
     if x < 1e-4:
@@ -195,7 +196,7 @@ def _x_over_sin(x):
     return x / math.sin(x)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _xcotx_minus_one(x):
     """x·cot x − 1 (≤ 0), series below |x| = 0.1."""
     if abs(x) < 0.1:
@@ -204,7 +205,7 @@ def _xcotx_minus_one(x):
     return x * math.cos(x) / math.sin(x) - 1.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _xcotx_minus_one_over_2x(x):
     """(x·cot x − 1)/(2x), finite at x = 0 (used as (g − 1)/Φ with x = Φ/2)."""
     if abs(x) < 0.1:
@@ -213,7 +214,7 @@ def _xcotx_minus_one_over_2x(x):
     return (x * math.cos(x) / math.sin(x) - 1.0) / (2.0 * x)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _wrap(a):
     """Angle wrapped to (−π, π]."""
     while a > math.pi:
@@ -223,7 +224,7 @@ def _wrap(a):
     return a
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def highland_sigma(p, mass, t):
     """σ_MS [rad] for unit charge: Highland (paper eq. 2, DESIGN §4) at p [MeV], path t [X0].
 
@@ -232,14 +233,14 @@ def highland_sigma(p, mass, t):
     return highland_theta0(min(p, P_MAX), mass, 1.0, t)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _cbrt(x):
     if x >= 0.0:
         return x ** (1.0 / 3.0)
     return -((-x) ** (1.0 / 3.0))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _newton_polish(c3, c2, c1, c0, u):
     for _ in range(4):
         f = ((c3 * u + c2) * u + c1) * u + c0
@@ -255,7 +256,7 @@ def _newton_polish(c3, c2, c1, c0, u):
     return u
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def solve_cubic(a3, a2, a1, a0, scale):
     """Real roots of a3·x³ + a2·x² + a1·x + a0 = 0 (Cardano), for App. C.
 
@@ -339,7 +340,7 @@ def solve_cubic(a3, a2, a1, a0, scale):
 # ------------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _fit_frame(bx, by, bz, cx, cy, cz, weak):
     """Rotation lab → fit frame, rows e1, e2, e3 (x′ = R·x), for the field (bx, by, bz) [T]
     and the chord c = x2 − x0 [mm]: returns (ok, r00 … r22). Scalars only (array
@@ -390,7 +391,7 @@ def _fit_frame(bx, by, bz, cx, cy, cz, weak):
     return True, e1x, e1y, e1z, e2x, e2y, e2z, ux, uy, uz
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _chord_gradients(cx, cy, cz):
     """∂φ/∂c and ∂θ/∂c of a chord c (fit frame), φ = atan2(c_y, c_x), θ = atan2(d, c_z):
     returns (φ_x, φ_y, θ_x, θ_y, θ_z); ∂φ/∂c_z = 0."""
@@ -400,7 +401,7 @@ def _chord_gradients(cx, cy, cz):
     return -cy / d2, cx / d2, cz * cx / (d * s2), cz * cy / (d * s2), -d / s2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _rotate(r00, r01, r02, r10, r11, r12, r20, r21, r22, v0, v1, v2):
     """(R·v) for a rotation R given as 9 numbers (row-major)."""
     return (r00 * v0 + r01 * v1 + r02 * v2,
@@ -408,7 +409,7 @@ def _rotate(r00, r01, r02, r10, r11, r12, r20, r21, r22, v0, v1, v2):
             r20 * v0 + r21 * v1 + r22 * v2)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def triplet_geometry_row(h, b, hv, b_threshold, g):
     """Fill one geometry row g (length N_GEOMETRY_COLUMNS) for hits h (3×3, mm).
 
@@ -587,7 +588,7 @@ def _geometry_kernel(hits, bfield, hit_var, b_threshold):
 # ------------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _path_x0(g, x_over_x0):
     """Path length [X0] through the middle plane (normal z) along the circle direction."""
     tx = g[G_TXC]
@@ -595,7 +596,7 @@ def _path_x0(g, x_over_x0):
     return x_over_x0 * math.sqrt(1.0 + tx * tx + ty * ty)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _weighted_2x2(cpp, cpt, ctt, rp, rt, pp, pt):
     """For C = [[cpp, cpt], [cpt, ctt]] and K = C⁻¹: (ρᵀKρ, ρᵀKψ, ψᵀKψ), ρ = (rp, rt),
     ψ = (pp, pt). Returns zeros if C is singular."""
@@ -611,7 +612,7 @@ def _weighted_2x2(cpp, cpt, ctt, rp, rt, pp, pt):
     return rkr, rkp, pkp
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _ms_only_radius(g):
     """Paper eq. 1: R3D = −(ηΦ̃ sin²ϑ + βΘ̃)/(η² sin²ϑ + β²) and its geometric weight."""
     s2 = math.sin(g[G_VARTHETA]) ** 2
@@ -623,7 +624,7 @@ def _ms_only_radius(g):
     return -(eta * g[G_PHI_TILDE] * s2 + beta * g[G_THETA_TILDE]) / w, w
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def fit_ms_row(g, x_over_x0, mass, bias_correction):
     """MS-only radius fit (paper eq. 1) on one geometry row.
 
@@ -659,7 +660,7 @@ def fit_ms_row(g, x_over_x0, mass, bias_correction):
     return r3d, sig_r, chi2, sms, True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _radius_cubic_coefficients(eta, beta, phit, thet, s2, vpp, vpt, vtt, b):
     """App. C cubic a3 R³ + a2 R² + a1 R + a0 = 0 for σ_MS = b/R3D.
 
@@ -677,7 +678,7 @@ def _radius_cubic_coefficients(eta, beta, phit, thet, s2, vpp, vpt, vtt, b):
     return a3, a2, a1, a0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _pick_root(n, r0, r1, r2, ref, positive):
     """The real root nearest to ref (optionally only positive ones); ok flag."""
     best = 0.0
@@ -693,7 +694,7 @@ def _pick_root(n, r0, r1, r2, ref, positive):
     return best, bestd < np.inf
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def fit_hit_errors_row(g, x_over_x0, mass):
     """Radius fit with hit uncertainties (paper §2.1.2, App. A, App. C) on one row.
 
@@ -767,7 +768,7 @@ def fit_hit_errors_row(g, x_over_x0, mass):
     return r, 1.0 / math.sqrt(rkr), pkp, b, sms, status
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _curvature_cubic_coefficients(rp, rt, pp, pt, s2, vpp, vpt, vtt, b):
     """Curvature-form analogue of App. C: σ_MS = b·|κ|, frozen-weight stationarity
     κ·ρᵀadj(C)ρ + ρᵀadj(C)ψ = 0 with C = [[b²κ²/sin²ϑ + V_ΦΦ, V_ΦΘ], [V_ΦΘ, b²κ² + V_ΘΘ]]."""
@@ -778,7 +779,7 @@ def _curvature_cubic_coefficients(rp, rt, pp, pt, s2, vpp, vpt, vtt, b):
     return a3, a2, a1, a0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
     """Curvature-form fit (DESIGN §7.2 last item, §15 traccc) on one geometry row.
 
@@ -858,7 +859,7 @@ def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
     return kap, 1.0 / rkr, pkp, sms, 1, status
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _fitted_theta(phi, s, z, theta, turn, kap):
     """Polar angle θ_i(κ) of a segment, linearised around the circle solution:
     θ_iC + (1 − α_i) cot θ_iC + κ·turn·((1 − α_i)/Φ_iC)·s_i·cot θ_iC."""
@@ -874,7 +875,7 @@ def _fitted_theta(phi, s, z, theta, turn, kap):
     return theta + oma * cot + kap * turn * q * s * cot
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def fit_triplet_kinks(g, x_over_x0, mass, b_threshold, p_min, form, straight):
     """The fit of `fit_triplet_row` without the direction at the middle hit (for pattern
     recognition, which needs only κ and χ²; the direction costs seven more trigonometric
@@ -923,7 +924,7 @@ def fit_triplet_kinks(g, x_over_x0, mass, b_threshold, p_min, form, straight):
     return kap, var_k, chi2, ndf, sms, kphi, ktheta, status
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def fit_triplet_row(g, x_over_x0, mass, b_threshold, p_min, form, straight, out):
     """Full fit of one triplet from its geometry row; writes `out` (N_FIT_COLUMNS).
 

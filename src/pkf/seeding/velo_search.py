@@ -103,6 +103,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pkf.geometry.detector import KIND_PIXEL, SIDE_LEFT, SIDE_RIGHT, SUBDETECTORS, Geometry
+from pkf.jit import NO_REFCOUNT
 from pkf.seeding.triplet_fit import (
     DEFAULT_B_THRESHOLD,
     DEFAULT_P_MIN,
@@ -280,7 +281,7 @@ class VeloTracks:
 # ------------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _inside(x, y, margin, half_x, half_y, hole_r, hole_hx, hole_hy, side, overlap):
     """True if (x, y) lies on a module's active area shrunk by `margin` [mm] (negative:
     enlarged); the rules of geometry.acceptance.in_active_area."""
@@ -299,7 +300,7 @@ def _inside(x, y, margin, half_x, half_y, hole_r, hole_hx, hole_hy, side, overla
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _window(v0x, v0y, v1x, v1y, rho, ms, tx, ty, nsig):
     """Half-widths (x, y) [mm] of the search window for a hit extrapolated along the line
     from hit 0 through hit 1 (variances v0, v1 [mm²]) by rho = Δz/(z1 − z0): the line's
@@ -315,7 +316,7 @@ def _window(v0x, v0y, v1x, v1y, rho, ms, tx, ty, nsig):
 N_PHI_BINS = 64
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _bin_ranges(bin_off, k, phi, w):
     """Index ranges [a0, a1) and [b0, b1) of the hits of module k of the current event
     in the φ bins overlapping [φ − w, φ + w], wrapping at ±π (the second range is empty
@@ -338,7 +339,7 @@ def _bin_ranges(bin_off, k, phi, w):
     return bin_off[base + b0], bin_off[base + b1 + 1], 0, 0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _fill_bins(bin_off, lay_off, hit, e, nl):
     """φ-bin table of event e: bin_off[k·(N_PHI_BINS + 1) + b] is the first row of module
     k with a φ bin ≥ b (rows are sorted by φ inside a module), the last entry its end."""
@@ -356,7 +357,7 @@ def _fill_bins(bin_off, lay_off, hit, e, nl):
         bin_off[base + N_PHI_BINS] = hi
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _other_side(side_a, side_b):
     """True if two modules cover opposite VELO halves (SIDE_LEFT vs SIDE_RIGHT)."""
     return side_a != side_b and side_a != 0.0 and side_b != 0.0
@@ -383,7 +384,7 @@ def _stable_order(key):
     return idx
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _wrap(a):
     if a > math.pi:
         return a - 2.0 * math.pi
@@ -429,7 +430,7 @@ def _grow_tracks(o_event, o_off, o_f, n_out):
     return ne, no, nf
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _chain_chi2(cc, cs0, cs1, cs2, straight):
     """Combined χ² of a chain from its running sums (paper eqs. 5–6 in κ):
     Σχ²_i + Σκ_i²/σ_i² − (Σκ_i/σ_i²)²/Σ1/σ_i²."""
@@ -438,7 +439,7 @@ def _chain_chi2(cc, cs0, cs1, cs2, straight):
     return cc + max(cs2 - cs1 * cs1 / cs0, 0.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _best_continuation_chi2(th, tf, ti, head_first, b, c, default):
     """Lowest χ² of the triplets (b, c, ·) already built, or `default` if none."""
     best = np.inf
@@ -510,7 +511,7 @@ def _add_triplet(th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd, chi2_cut,
     return nt + 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut, mass,
                   b_threshold, p_min, ms_scale, straight, window_sigmas, margin, max_missing,
                   hbuf, vbuf, bbuf, gbuf):
@@ -635,7 +636,7 @@ def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi
     return lo, hi, c2_sum, nd_sum, n_fits
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _fill_gaps(trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut,
                mass, b_threshold, p_min, straight, window_sigmas, margin,
                hbuf, vbuf, bbuf, gbuf):
@@ -727,7 +728,7 @@ def _fill_gaps(trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, c
     return lo + n, c2_sum, nd_sum, n_fits
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _line_state(trk, lo, hi, hit):
     """Weighted least-squares straight line through the hits trk[lo:hi] (x–z and y–z
     independently, weights 1/σ²): (z, x, y, tx, ty) at the first hit."""
@@ -846,7 +847,7 @@ def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
 
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, bin_off, used,
                      chi2_cut, mass, b_threshold, p_min, straight, max_missing, z_lo, z_hi,
                      tol0, tol1, window_sigmas, margin, keep_best, all_skips, th, tf, ti,
