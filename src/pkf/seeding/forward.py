@@ -371,7 +371,7 @@ class ForwardTracks:
 # Kalman-filter pieces (deviation δ from a reference trajectory; H = [cos α, sin α, 0, 0, 0])
 # ------------------------------------------------------------------------------------
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _predict(F3, Q3, j, X, P3, a, X_out, P3_out, b, tmp):
     """X_out[b] = F·X[a], P3_out[b] = F·P3[a]·Fᵀ + Q with F = F3[j], Q = Q3[j], for the
     parametrized steps: q/p is transported unchanged (F row 4 = e₄) and has no noise
@@ -404,7 +404,7 @@ def _predict(F3, Q3, j, X, P3, a, X_out, P3_out, b, tmp):
     P3_out[b, 4, 4] = P3[a, 4, 4]
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _update(X, P3, d, c, s, r, var, X_out, P3_out, pht):
     """Strip update of state d with residual r and residual variance var = H·P·Hᵀ + σ²."""
     for i in range(5):
@@ -416,7 +416,7 @@ def _update(X, P3, d, c, s, r, var, X_out, P3_out, pht):
             P3_out[d, i, m] = P3[d, i, m] - k * pht[m]
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _velo_prior(opt, q_noise, sigma_q, P):
     for i in range(5):
         for k in range(5):
@@ -450,7 +450,7 @@ def _reference(ext, poly, ref, quad, a, f_layer, n_ut, j_end, s_v, q, q_noise, r
     return st
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _maybe_crossed(x, y, vx, vy, acc, j):
     """False if (x, y) with variances (vx, vy) is outside the active area acc[j] (half_x,
     half_y, hole radius, hole half_x, hole half_y) by more than 3σ."""
@@ -768,10 +768,14 @@ def _fit_fixed(j0, j1, fixed, hu, hsig, f_cos, f_sin, f_acc, f_bit, f_group_end,
     return n_hits, chi2
 
 
-def _hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> np.ndarray:
+def _hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> tuple:
     """Breakpoints of the Hough coordinate t(q) (see `_t_of_q`): |q| = 0 and then every
     point where the tolerance τ(q) = τ0 + τ1·|q| has grown by `ratio`, up to 2·q_max;
-    row 0: |q|, row 1: t = ln(1 + τ1·|q|/τ0)/τ1 (exact at the breakpoints)."""
+    grid row 0: |q|, row 1: t = ln(1 + τ1·|q|/τ0)/τ1 (exact at the breakpoints). With
+    look-up tables of the breakpoint interval on uniform cells of |q| and of |t| (cells
+    half the shortest interval wide: the interval is the cell's or the next), so that a
+    conversion costs a table read instead of a bisection (the q/p scan converts every
+    hit). Returns (grid (2, n), q table, 1/q cell, t table, 1/t cell)."""
     qs = [0.0]
     while qs[-1] < 2.0 * q_max and tau1 > 0:
         qs.append((ratio * (tau0 + tau1 * qs[-1]) - tau0) / tau1)
@@ -779,43 +783,54 @@ def _hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> 
         qs.append(2.0 * q_max)
     q = np.array(qs)
     t = np.log1p(tau1 * q / tau0) / tau1 if tau1 > 0 else q / tau0
-    return np.ascontiguousarray(np.vstack([q, t]))
+    grid = np.ascontiguousarray(np.vstack([q, t]))
+    tables = []
+    for row in grid:
+        cell = 0.5 * float(np.min(np.diff(row)))
+        edges = np.arange(int(row[-1] / cell) + 2) * cell
+        lut = np.clip(np.searchsorted(row, edges, side="right") - 1, 0, row.size - 2).astype(np.int64)
+        tables += [lut, 1.0 / cell]
+    return (grid, *tables)
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
-def _t_of_q(q, tg):
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _interval(a, row, lut, inv_cell):
+    """Index lo of the breakpoint interval [row[lo], row[lo+1]) holding a ≥ 0 (the last
+    interval beyond the end), from the cell table of `_hough_grid`."""
+    c = int(a * inv_cell)
+    last = row.shape[0] - 2
+    if c >= lut.shape[0]:
+        return last
+    lo = lut[c]
+    while lo < last and row[lo + 1] <= a:
+        lo += 1
+    return lo
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _t_of_q(q, hough):
     """Hough coordinate of q/p in units of the local tolerance τ(q): piecewise linear
-    through the breakpoints tg (each interval's bin width lies between τ at its ends;
-    a logarithm per hit would cost more than the rest of the scan)."""
+    through the breakpoints (each interval's bin width lies between τ at its ends; a
+    logarithm per hit would cost more than the rest of the scan)."""
+    tg, lut_q, inv_q, _, _ = hough
     a = abs(q)
-    lo = 0
-    hi = tg.shape[1] - 1
-    while hi - lo > 1:
-        mid = (lo + hi) >> 1
-        if tg[0, mid] <= a:
-            lo = mid
-        else:
-            hi = mid
+    lo = _interval(a, tg[0], lut_q, inv_q)
+    hi = lo + 1
     t = tg[1, lo] + (a - tg[0, lo]) * (tg[1, hi] - tg[1, lo]) / (tg[0, hi] - tg[0, lo])
     return t if q >= 0.0 else -t
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
-def _q_of_t(t, tg):
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _q_of_t(t, hough):
+    tg, _, _, lut_t, inv_t = hough
     a = abs(t)
-    lo = 0
-    hi = tg.shape[1] - 1
-    while hi - lo > 1:
-        mid = (lo + hi) >> 1
-        if tg[1, mid] <= a:
-            lo = mid
-        else:
-            hi = mid
+    lo = _interval(a, tg[1], lut_t, inv_t)
+    hi = lo + 1
     q = tg[0, lo] + (a - tg[1, lo]) * (tg[0, hi] - tg[0, lo]) / (tg[1, hi] - tg[1, lo])
     return q if t >= 0.0 else -q
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _hermite(x0, x1, d0, d1, h, u):
     """Cubic Hermite interpolation on [x0, x1] (length h, derivatives d0, d1) at u ∈ [0, 1]."""
     u2 = u * u
@@ -824,7 +839,7 @@ def _hermite(x0, x1, d0, d1, h, u):
             + (u3 - u2) * h * d1)
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _node_interp(qn, n_nodes, vals, ders, col, q):
     """x(q) on SciFi layer `col` by cubic Hermite interpolation of the nodes (linear
     outside) and dx/dq by linear interpolation of the node derivatives."""
@@ -842,12 +857,12 @@ def _node_interp(qn, n_nodes, vals, ders, col, q):
     return v, ders[k, col] + u * (ders[k + 1, col] - ders[k, col])
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _pvalue_ok(chi2, n_meas, cut):
     return chi2 <= cut[min(n_meas, cut.shape[0] - 1)]
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _popcount(m):
     n = 0
     while m:
@@ -856,7 +871,7 @@ def _popcount(m):
     return n
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _conditional(P, pc, k):
     """Covariance of (x, tx) and (y, ty) given q/p: pc[k … k+5] = xx, x·tx, tx·tx, yy, y·ty, ty·ty."""
     pc[k] = P[0, 0] - P[0, 4] ** 2 / P[4, 4]

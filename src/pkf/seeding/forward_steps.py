@@ -219,7 +219,7 @@ def table_step(meta, poly, ref, eloss, s_in, s_out, jac, quadratic):
     return status
 
 
-@nb.njit(cache=True, **NO_REFCOUNT, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _noise_at(noise_par, slot, s, q_noise, dz, s_tmp, jac, out):
     """Paper eq. 11 for the step leaving `slot`, at the slopes of s and |q/p| = q_noise,
     plus the energy-loss straggling before the step (q/p noise (p̃5·q²)² through the
