@@ -31,7 +31,8 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    random combination often looks as good as the true one: the UT only guides the SciFi
    search, and UT hits are attached at the end with the SciFi momentum (step 4).
 2. **q/p scan of the SciFi x layers (Hough in q/p)** for each start — the UT candidates,
-   best first; in the second pass (step 6) the VELO prior alone over |q/p| ≤ 1/p_min. The start state given q/p is transported to the SciFi layers at q/p nodes
+   best first; in the second pass (step 6) the VELO prior alone over |q/p| ≤ 1/p_min.
+   The start state given q/p is transported to the SciFi layers at q/p nodes
    (``node_spacing``/3 GeV apart, cubic Hermite in between: ≤ 0.3 mm); each x-layer hit in
    the covered range gets its implied q/p (inverse Hermite, hits visited in x order) and a
    Hough coordinate t in units of the tolerance τ(q) = ``hough_tol_abs`` +
@@ -484,12 +485,13 @@ def _search(j0, j1, mode, fixed, lay_off_e, hu, hsig, used, f_cos, f_sin, f_sig,
             max_nodes, ws, best_path, best_x, best_P, top, miss_penalty):
     """Depth-first combinatorial Kalman filter over forward layers j0 … j1−1.
 
-    mode[j]: _MODE_SEARCH (hits in the window, up to first_branches / max_branch by
-    Δχ²), _MODE_FIXED (the hit fixed[j] if Δχ² < nsig², sorted-hit index, −1 none),
-    _MODE_OFF (transport only). Search layers without an accepted hit are skips (at
-    most max_skip); before the first search hit is attached the skip branch is always
-    tried if skip_first. The pseudo-measurement (x = pm_value, variance pm_var) is
-    applied at depth pm_depth (−1: none) before the hits, outside χ².
+    mode[j]: _MODE_SEARCH (hits in the window that are not used[h] — taken by a good
+    extension, step 6 — up to first_branches / max_branch by Δχ²), _MODE_FIXED (the hit
+    fixed[j] if Δχ² < nsig², sorted-hit index, −1 none), _MODE_OFF (transport only).
+    Search layers without an accepted hit are skips (at most max_skip); before the first
+    search hit is attached the skip branch is always tried if skip_first. The
+    pseudo-measurement (x = pm_value, variance pm_var) is applied at depth pm_depth (−1:
+    none) before the hits, outside χ².
     f_bit[j]: requirement bit of layer j (0: none); f_group_end[j]: the bits needed by
     the group ending at j must be present (f_need_end[j] mask). need: bits required at
     the end. Returns (n_search_hits, n_fixed_hits, chi2) of the best leaf (most search
