@@ -143,10 +143,26 @@ def demo(out: Path, events: int, seed: int, overwrite: bool) -> None:
     run_demo(out, events, seed, overwrite, echo=click.echo)
 
 
+def _interrupted_message(args: list[str]) -> str:
+    """What Ctrl-C left behind, for the command that was running (DESIGN §13: exit 130)."""
+    command = next((a for a in args if not a.startswith("-")), "")
+    if command == "reconstruct":
+        return ("pkf: interrupted; finished partitions are kept in the hidden staging directory "
+                "(rerun the same reconstruct command to resume)")
+    return "pkf: interrupted; nothing was written (rerun the command)"
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the `pkf` console script; returns the exit code."""
+    """Entry point of the `pkf` console script; returns the exit code.
+
+    The command runs inside click's context directly rather than through ``cli.main``,
+    which would turn Ctrl-C into ``click.Abort`` (exit 1, "aborted"); here it stays a
+    KeyboardInterrupt: exit 130 with what to do next.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
     try:
-        cli.main(args=argv, prog_name="pkf", standalone_mode=False)
+        with cli.make_context("pkf", args) as ctx:
+            cli.invoke(ctx)
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.exceptions.Abort:
@@ -163,8 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         click.echo(str(exc), err=True)
         return 1
     except KeyboardInterrupt:
-        click.echo("pkf: interrupted; nothing that looks complete was written "
-                   "(rerun the same reconstruct command to resume it)", err=True)
+        click.echo(_interrupted_message(args), err=True)
         return 130
     except Exception as exc:  # an internal error: one line, the traceback on request
         if os.environ.get("PKF_DEBUG"):

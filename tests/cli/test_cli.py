@@ -73,3 +73,23 @@ def test_console_script_runs(tmp_path):
                              "--events", "-1"], capture_output=True, text=True, env=env, check=False)
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("command, hint", [("reconstruct", "rerun the same reconstruct command to resume"),
+                                           ("simulate", "nothing was written")])
+def test_ctrl_c_exits_130_with_what_to_do(tmp_path, capsys, monkeypatch, command, hint):
+    """Issue 13 case 8: click turned Ctrl-C into Abort (exit 1, "aborted"); it is exit 130 with a
+    hint that fits the command, on one line."""
+    import pkf.pipeline.reconstruct
+    import pkf.pipeline.simulate
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pkf.pipeline.reconstruct, "run_reconstruction", interrupted)
+    monkeypatch.setattr(pkf.pipeline.simulate, "run_simulation", interrupted)
+    args = {"reconstruct": ["reconstruct", str(tmp_path), "--out", str(tmp_path / "run")],
+            "simulate": ["simulate", "--out", str(tmp_path / "ds")]}[command]
+    assert main(args) == 130
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pkf: interrupted") and hint in err, err

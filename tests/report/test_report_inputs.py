@@ -85,9 +85,9 @@ def test_no_runs(tmp_path):
 
 
 def test_out_overlapping_a_run(good_run):
-    with pytest.raises(InputError, match="overlaps"):
+    with pytest.raises(InputError, match="the input"):
         run_report([good_run], good_run / "report")
-    with pytest.raises(InputError, match="overlaps"):
+    with pytest.raises(InputError, match="the input"):
         run_report([good_run], good_run, overwrite=True)
     assert (good_run / "chi2.parquet").is_file() and not (good_run / "report").exists()
 

@@ -20,7 +20,7 @@ import os
 import secrets
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,7 @@ __all__ = [
     "PARQUET_WRITE_OPTIONS",
     "atomic_write_table",
     "atomic_write_json",
+    "check_output_apart",
     "check_output_dir",
     "staged_output_dir",
 ]
@@ -153,14 +154,48 @@ def atomic_write_json(obj: object, path: str | os.PathLike) -> Path:
     return path
 
 
-def check_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Path:
+def check_output_apart(output: str | os.PathLike, inputs: Iterable[str | os.PathLike | None],
+                       option: str = "--out") -> None:
+    """Refuse an output that equals, contains or sits inside one of the inputs (DESIGN §13).
+
+    With ``--overwrite`` an output directory is deleted and replaced, so an output that
+    contains an input would delete it, and one that sits inside an input would change the
+    input (a run inside a dataset is read back as part of it). Paths are compared after
+    resolving symbolic links and ``..``, so no spelling of the same place gets through;
+    ``None`` inputs (an option not given) are skipped.
+
+    Raises:
+        InputError: one line naming the option, the output and the input.
+    """
+    shown = os.fspath(output)
+    out = Path(os.path.realpath(output))
+    for given in inputs:
+        if given is None:
+            continue
+        inp = Path(os.path.realpath(given))
+        if out == inp:
+            relation = "is"
+        elif out in inp.parents:
+            relation = "contains"
+        elif inp in out.parents:
+            relation = "is inside"
+        else:
+            continue
+        raise InputError(f"{option} {shown}: {relation} the input {os.fspath(given)}; "
+                         "an output must lie outside every input")
+
+
+def check_output_dir(final_path: str | os.PathLike, overwrite: bool,
+                     inputs: Iterable[str | os.PathLike | None] = ()) -> Path:
     """Check that the output directory ``final_path`` can be created; return it as an absolute path.
 
     Raises:
-        InputError: the parent directory does not exist or is not writable,
-            ``final_path`` is an existing file, or it is a non-empty directory and
-            ``overwrite`` is False.
+        InputError: ``final_path`` equals, contains or sits inside one of ``inputs``
+            (:func:`check_output_apart`, whatever ``overwrite`` says), the parent
+            directory does not exist or is not writable, ``final_path`` is an existing
+            file, or it is a non-empty directory and ``overwrite`` is False.
     """
+    check_output_apart(final_path, inputs)
     shown = os.fspath(final_path)
     final = Path(os.path.abspath(final_path))
     parent = final.parent
@@ -185,11 +220,12 @@ def _umask() -> int:
 
 
 @contextlib.contextmanager
-def staged_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Iterator[Path]:
+def staged_output_dir(final_path: str | os.PathLike, overwrite: bool,
+                      inputs: Iterable[str | os.PathLike | None] = ()) -> Iterator[Path]:
     """Build an output directory in a temporary sibling and move it into place on success.
 
-    On entry, checks that ``final_path`` can be created (:func:`check_output_dir`),
-    so the caller gets the one-line :class:`~pkf.errors.InputError` before doing
+    On entry, checks that ``final_path`` can be created and lies apart from every one of
+    ``inputs`` (:func:`check_output_dir`), so the caller gets the one-line :class:`~pkf.errors.InputError` before doing
     any work. Yields a new, empty hidden directory beside ``final_path`` to write
     into. When the ``with`` block ends normally, the directory is renamed to
     ``final_path``; a previous ``final_path`` (an empty directory, or any directory
@@ -203,7 +239,8 @@ def staged_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Iterato
             atomic_write_table(hits, tmp / "hits.parquet", schema=HITS)
             atomic_write_json(meta, tmp / "meta.json")
     """
-    final = check_output_dir(final_path, overwrite)
+    inputs = tuple(inputs)
+    final = check_output_dir(final_path, overwrite, inputs)
     try:
         staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
     except OSError as exc:
@@ -212,7 +249,7 @@ def staged_output_dir(final_path: str | os.PathLike, overwrite: bool) -> Iterato
         os.chmod(staging, 0o777 & ~_umask())
         yield staging
         # Re-check: another process may have created the output meanwhile.
-        check_output_dir(final, overwrite)
+        check_output_dir(final, overwrite, inputs)
         if final.exists():
             old = final.with_name(f".{final.name}.{os.getpid()}.{secrets.token_hex(4)}.old")
             os.replace(final, old)

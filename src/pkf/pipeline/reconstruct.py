@@ -23,7 +23,7 @@ from tqdm import tqdm
 import pkf
 from pkf.errors import InputError
 from pkf.fit.fitters import Fitter, get_fitter
-from pkf.io.atomic import atomic_write_json, check_output_dir
+from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
 from pkf.io.stream import file_sha256
 from pkf.pipeline.batch import metrics_from_counts
 from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
@@ -105,8 +105,8 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise InputError(f"--workers: must be >= 1, not {workers}")
-    if Path(out).resolve() == dataset_path.resolve():
-        raise InputError(f"--out {out}: is the input dataset")
+    inputs = (dataset_path, config.params)
+    check_output_apart(out, inputs)  # before anything: --overwrite would delete an input inside --out
     final = Path(out)
     maybe_complete = not overwrite and final.is_dir() and (final / "run.json").is_file()
     if not maybe_complete:
@@ -128,7 +128,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
             echo(f"{out} is complete: all {len(keys)} partitions are done and intact")
         return info
 
-    with RunStaging(out, overwrite) as staging:
+    with RunStaging(out, overwrite, inputs) as staging:
         done = staging.finished(keys)
         if done and echo:
             echo(f"resuming: {len(done)} of {len(keys)} partitions already done")

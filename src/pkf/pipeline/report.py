@@ -8,11 +8,9 @@ partial report. The summary.json keys are documented in :mod:`pkf.report.metrics
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-from pkf.errors import InputError
-from pkf.io.atomic import atomic_write_json, check_output_dir, staged_output_dir
+from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir, staged_output_dir
 from pkf.report.html import render_html
 from pkf.report.metrics import compute_report
 from pkf.report.runs import load_runs
@@ -21,10 +19,6 @@ __all__ = ["run_report", "REPORT_FILES"]
 
 #: Files every report holds (plus the PNG plots that have data).
 REPORT_FILES = ("index.html", "summary.json")
-
-
-def _inside(path: Path, directory: Path) -> bool:
-    return path == directory or directory in path.parents
 
 
 def run_report(run_dirs: list[Path], out: Path, overwrite: bool = False) -> dict:
@@ -45,23 +39,15 @@ def run_report(run_dirs: list[Path], out: Path, overwrite: bool = False) -> dict
             nothing is written).
     """
     run_dirs = [Path(p) for p in run_dirs]
-    final = check_output_dir(out, overwrite)
-    for run in run_dirs:
-        resolved = Path(os.path.abspath(run))
-        if _inside(final, resolved) or _inside(resolved, final):
-            raise InputError(f"--out {out}: overlaps the run directory {run}")
+    check_output_dir(out, overwrite, inputs=run_dirs)
     runs = load_runs(run_dirs)
-    for run in runs:
-        dataset = run.dataset_path
-        if dataset is not None:
-            resolved = Path(os.path.abspath(dataset))
-            if _inside(final, resolved) or _inside(resolved, final):
-                raise InputError(f"--out {out}: overlaps the dataset {dataset} of run {run.path}")
+    inputs = [*run_dirs, *(run.dataset_path for run in runs)]
+    check_output_apart(out, inputs)
     data = compute_report(runs)
 
     from pkf.report.plots import make_plots  # matplotlib is imported only when a report is made
 
-    with staged_output_dir(out, overwrite) as staging:
+    with staged_output_dir(out, overwrite, inputs) as staging:
         plots = make_plots(data, staging)
         (staging / "index.html").write_text(render_html(data.summary, plots), encoding="utf-8")
         atomic_write_json(data.summary, staging / "summary.json")

@@ -63,8 +63,9 @@ class RunStaging:
     Use as a context manager; :meth:`finish` moves it into place.
     """
 
-    def __init__(self, final: str | os.PathLike, overwrite: bool):
-        self.final = check_output_dir(final, overwrite=True)
+    def __init__(self, final: str | os.PathLike, overwrite: bool, inputs: tuple = ()):
+        self.final = check_output_dir(final, overwrite=True, inputs=inputs)
+        self.inputs = inputs
         self.overwrite = overwrite
         self.path = partial_dir(self.final)
         self._lock = None
@@ -134,7 +135,7 @@ class RunStaging:
         shutil.rmtree(self.path / JOURNAL, ignore_errors=True)
         with contextlib.suppress(FileNotFoundError):
             (self.path / ".lock").unlink()
-        final = self.final
+        final = check_output_dir(self.final, overwrite=True, inputs=self.inputs)
         if final.exists():
             if not self.overwrite and any(final.iterdir()):
                 raise InputError(f"{final}: output directory exists and is not empty (use --overwrite to replace it)")

@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 import pkf
 from pkf.errors import InputError
-from pkf.geometry import Geometry, load_geometry
+from pkf.geometry import BUILTIN_GEOMETRIES, Geometry, load_geometry
 from pkf.io.atomic import atomic_write_json, staged_output_dir
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES, table_from_columns
 from pkf.io.writer import StreamingTableWriter
@@ -160,9 +160,10 @@ def run_simulation(config: SimulationConfig, out: str | Path, overwrite: bool = 
     progress: show a progress bar (None: only when stderr is a terminal).
     """
     config.validate()
+    geometry_file = None if config.geometry in BUILTIN_GEOMETRIES else config.geometry
     geometry = load_geometry(config.geometry)
     n_hits = 0
-    with staged_output_dir(out, overwrite) as staging:
+    with staged_output_dir(out, overwrite, inputs=[geometry_file]) as staging:
         writers = {
             name: StreamingTableWriter(staging / f"{name}.parquet", schema)
             for name, schema in (("hits", HITS), ("particles", PARTICLES), ("mc_hits", MC_HITS))

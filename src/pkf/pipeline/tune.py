@@ -10,6 +10,7 @@ import numpy as np
 
 import pkf
 from pkf.errors import InputError
+from pkf.io.atomic import check_output_apart
 from pkf.fit.parametrized import STEP_UT_TO_SCIFI
 from pkf.geometry.detector import Geometry
 from pkf.params.parameter_set import ParameterSet, slot_structure
@@ -40,6 +41,7 @@ def ut_to_scifi_table(geometry: Geometry, field_map) -> UTSciFiTable | None:
 def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print) -> ParameterSet:
     """Tune every step of the dataset's geometry and write the parameter file `out`."""
     out = Path(out)
+    check_output_apart(out, [dataset_path])
     if out.exists() and not overwrite:
         raise InputError(f"--out {out}: exists (use --overwrite to replace it)")
     if not out.parent.is_dir():
