@@ -53,6 +53,9 @@ def test_run_json(run):
     assert info["config"]["pattern"] == "truth" and info["config"]["fitters"] == ["reference"]
     timing = info["timing"]["fit"]["reference"]
     assert timing["tracks"] > 0 and timing["tracks_per_s"] > 0 and timing["ns_per_node"] > 0
+    # speeds from the kernels' CPU time, so that they do not depend on --workers (issue 17)
+    assert timing["tracks_per_s"] == pytest.approx(timing["tracks"] / timing["cpu_s"])
+    assert timing["ns_per_node"] == pytest.approx(1e9 * timing["cpu_s"] / timing["nodes"])
     assert info["pattern"]["efficiency"] > 0.95
     assert info["input"]["geometry"] == "lhcb-like"
 

@@ -205,14 +205,20 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
 
 
 def _timing_json(timing: dict, fit_stats: dict) -> dict:
-    """Per stage wall_s/cpu_s summed over partitions; per fitter speeds (after JIT warm-up)."""
+    """Per stage wall_s/cpu_s summed over partitions; per fitter speeds (after JIT warm-up).
+
+    ``tracks_per_s`` and ``ns_per_node`` divide by the CPU time of the fitter's kernels summed
+    over workers, not by wall time: with several workers sharing the cores, wall time counts the
+    waits for a core and the speed would depend on ``--workers`` (DESIGN §6). ``wall_s`` stays
+    recorded beside it.
+    """
     out = {stage: dict(t) for stage, t in timing.items() if not stage.startswith("fit.")}
     out["fit"] = {}
     for name, stats in fit_stats.items():
-        wall = stats["wall_s"]
+        cpu = timing.get(f"fit.{name}", {}).get("cpu_s", 0.0)
         out["fit"][name] = {
-            "wall_s": wall, "cpu_s": timing.get(f"fit.{name}", {}).get("cpu_s", 0.0), "tracks": stats["tracks"],
-            "tracks_per_s": stats["tracks"] / wall if wall > 0 else None,
-            "ns_per_node": 1e9 * wall / stats["nodes"] if stats["nodes"] else None,
+            "wall_s": stats["wall_s"], "cpu_s": cpu, "tracks": stats["tracks"], "nodes": stats["nodes"],
+            "tracks_per_s": stats["tracks"] / cpu if cpu > 0 else None,
+            "ns_per_node": 1e9 * cpu / stats["nodes"] if stats["nodes"] and cpu > 0 else None,
         }
     return out
