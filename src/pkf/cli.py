@@ -116,14 +116,19 @@ def tune(dataset: Path, out: Path, overwrite: bool) -> None:
 
 
 @cli.command()
-@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("runs", nargs=-1, required=True, metavar="RUN[:LABEL]...")
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Report directory to create.")
+@click.option("--reference", default=None, metavar="LABEL[/FITTER]",
+              help="Entry that ratios and speed-ups compare with. Default: the first 'reference' fitter, "
+                   "else the first entry.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing non-empty --out.")
-def report(runs: tuple[Path, ...], out: Path, overwrite: bool) -> None:
-    """Resolution, pull, χ² and mass report of one or more RUN directories."""
+def report(runs: tuple[str, ...], out: Path, reference: str | None, overwrite: bool) -> None:
+    """Resolution, pull, χ² and mass report of one or more runs, each labelled RUN:LABEL
+    (default label: the run folder's name); the same fitter may appear in several runs."""
     from pkf.pipeline.report import run_report
 
-    run_report(list(runs), out, overwrite=overwrite)
+    run_report(list(runs), out, overwrite=overwrite, reference=reference,
+               echo=lambda line: click.echo(f"pkf: warning: {line}", err=True))
     click.echo(f"wrote {out / 'index.html'} and {out / 'summary.json'}")
 
 

@@ -107,3 +107,10 @@ def image_sources(html_text: str) -> list[str]:
 
 def read_summary(report: Path) -> dict:
     return json.loads((report / "summary.json").read_text())
+
+
+def entry(summary: dict, fitter: str) -> dict:
+    """The report entry (``LABEL/FITTER``) of ``fitter``, which must be the only one of that fitter."""
+    found = [rep for rep in summary["entries"].values() if rep["fitter"] == fitter]
+    assert len(found) == 1, f"{len(found)} entries of fitter {fitter!r}"
+    return found[0]

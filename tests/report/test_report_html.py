@@ -8,7 +8,7 @@ import shutil
 import subprocess
 
 import pytest
-from report_helpers import SECTION_IDS, image_sources
+from report_helpers import SECTION_IDS, entry, image_sources
 
 from pkf.report.html import SECTION_IDS as MODULE_SECTION_IDS
 
@@ -51,15 +51,15 @@ def test_index_html(which, telescope_report, bs_report):
     assert sorted(sources) == pngs
     if which == "bs":
         assert "mass.png" in sources and "efficiency.png" in sources
-        sigma = summary["fitters"]["reference"]["mass"]["fit"]["sigma"]
+        sigma = entry(summary, "reference")["mass"]["fit"]["sigma"]
         assert f"{sigma:.2f}" in text
     else:
         assert "mass.png" not in sources  # no B_s decay in a gun sample: said, not drawn
         assert "no B_s" in text
     # a number from each table is on the page
-    pull_width = summary["fitters"]["reference"]["pulls"]["parameters"]["x"]["width"]
+    pull_width = entry(summary, "reference")["pulls"]["parameters"]["x"]["width"]
     assert f"{pull_width:.3f}" in text
-    assert f"{summary['fitters']['reference']['timing']['tracks_per_s']:.4g}" in text
+    assert f"{entry(summary, 'reference')['timing']['tracks_per_s']:.4g}" in text
 
 
 def _chromium() -> str:

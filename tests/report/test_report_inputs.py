@@ -76,8 +76,16 @@ def test_missing_directory(tmp_path):
     _assert_refused([tmp_path / "nope"], tmp_path / "report", "does not exist")
 
 
-def test_same_fitter_twice(good_run, tmp_path):
-    _assert_refused([good_run, good_run], tmp_path / "report", "parametrized", "also in")
+def test_same_label_twice(good_run, tmp_path):
+    """The same run twice (or two folders of one name) needs labels to tell the entries apart."""
+    _assert_refused([good_run, good_run], tmp_path / "report", "label", "RUN:LABEL")
+
+
+def test_bad_label_or_reference(good_run, tmp_path):
+    _assert_refused([f"{good_run}:a/b"], tmp_path / "report", "without '/'")
+    _assert_refused([f"{good_run}:"], tmp_path / "report", "non-empty")
+    with pytest.raises(InputError, match="--reference nope: no such entry"):
+        run_report([good_run], tmp_path / "report", reference="nope")
 
 
 def test_no_runs(tmp_path):

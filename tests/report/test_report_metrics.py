@@ -7,10 +7,11 @@ import json
 import numpy as np
 import pyarrow.compute as pc
 import pytest
-from report_helpers import read_summary, write_synthetic_run
+from report_helpers import entry, read_summary, write_synthetic_run
 
 from pkf.io.reader import read_table
 from pkf.io.schemas import PULLS, STATES
+from pkf.cli import main
 from pkf.pipeline.report import run_report
 from pkf.report.gauss import gaussian_core
 from pkf.report.metrics import CHI2_NDF_CUTS, P_EDGES_MEV
@@ -32,8 +33,8 @@ def test_summary_json_is_the_returned_summary(telescope_report):
     on_disk = read_summary(out)
     assert on_disk == json.loads(json.dumps(summary))  # no NaN in this summary: identical
     assert on_disk["kind"] == "report"
-    assert on_disk["fitter_order"] == ["parametrized", "reference"]
-    assert on_disk["reference_fitter"] == "reference"
+    assert on_disk["entry_order"] == ["run_parametrized/parametrized", "run_reference/reference"]
+    assert on_disk["reference"] == "run_reference/reference"
     assert [r["fitters"] for r in on_disk["runs"]] == [["parametrized"], ["reference"]]
 
 
@@ -41,7 +42,7 @@ def test_summary_json_is_the_returned_summary(telescope_report):
 def test_pulls_equal_pulls_table(telescope_runs, telescope_report, fitter):
     _, summary = telescope_report
     pulls = _first_hit(telescope_runs[fitter], PULLS, "pulls", fitter)
-    section = summary["fitters"][fitter]["pulls"]
+    section = entry(summary, fitter)["pulls"]
     assert section["available"] and section["location"] == "first_hit"
     for par in ("x", "y", "tx", "ty", "qop"):
         values = np.asarray(pulls[f"pull_{par}"])
@@ -67,7 +68,7 @@ def test_resolutions_equal_pulls_table(telescope_runs, telescope_report, fitter)
     qop = np.array([qop_of[k] for k in zip(pulls["event_id"], pulls["track_id"])])
     values = {"x": np.asarray(pulls["res_x"]), "tx": np.asarray(pulls["res_tx"]),
               "dp_over_p": (1.0 / np.abs(qop) - p_true) / p_true}
-    res = summary["fitters"][fitter]["resolution"]
+    res = entry(summary, fitter)["resolution"]
     assert res["p_edges_mev"] == P_EDGES_MEV.tolist()
     checked = 0
     for var, v in values.items():
@@ -89,7 +90,7 @@ def test_resolutions_equal_pulls_table(telescope_runs, telescope_report, fitter)
 
 def test_ratio_and_speed_up_vs_reference(telescope_runs, telescope_report):
     _, summary = telescope_report
-    par, ref = summary["fitters"]["parametrized"], summary["fitters"]["reference"]
+    par, ref = entry(summary, "parametrized"), entry(summary, "reference")
     assert ref["resolution"]["ratio_to_reference"] is None
     ratio = par["resolution"]["ratio_to_reference"]["dp_over_p"]["rms"]
     for r, a, b in zip(ratio, par["resolution"]["variables"]["dp_over_p"]["bins"]["rms"],
@@ -115,7 +116,7 @@ def test_efficiency_and_rates_match_run_json(bs_run, bs_report):
     assert recomputed["reconstructible"] == run_json["pattern"]["reconstructible"] > 100
     for key in ("efficiency", "ghost_rate", "clone_rate"):
         assert recomputed[key] == pytest.approx(run_json["pattern"][key])
-    eff = summary["fitters"]["reference"]["efficiency"]
+    eff = entry(summary, "reference")["efficiency"]
     assert eff["available"] and eff["reconstructible"] == recomputed["reconstructible"]
     assert eff["found"] <= eff["reconstructible"] and eff["efficiency"] > 0.9
     assert sum(eff["vs_p"]["reconstructible"]) <= eff["reconstructible"]
@@ -125,7 +126,7 @@ def test_efficiency_and_rates_match_run_json(bs_run, bs_report):
 
 def test_bs_mass_from_matched_kaons(bs_report):
     _, summary = bs_report
-    mass = summary["fitters"]["reference"]["mass"]
+    mass = entry(summary, "reference")["mass"]
     assert mass["location"] == "beamline"
     assert mass["n_signal_decays"] == 30
     assert 10 <= mass["n_candidates"] <= 30
@@ -137,11 +138,11 @@ def test_bs_mass_from_matched_kaons(bs_report):
 
 def test_no_ghosts_is_said_not_invented(bs_report):
     _, summary = bs_report
-    chi2 = summary["fitters"]["reference"]["chi2"]
+    chi2 = entry(summary, "reference")["chi2"]
     assert chi2["has_mc"] and not chi2["has_ghosts"]
     assert chi2["ghost"] is None and chi2["cut_scan"]["ghost_rejection"] is None
     assert "no ghost" in chi2["note"]
-    assert chi2["real"]["n"] == summary["fitters"]["reference"]["tracks"]["matched"]
+    assert chi2["real"]["n"] == entry(summary, "reference")["tracks"]["matched"]
 
 
 def test_chi2_scan_with_ghosts(tmp_path):
@@ -149,7 +150,7 @@ def test_chi2_scan_with_ghosts(tmp_path):
     truth = write_synthetic_run(run, fitters=("parametrized", "reference"), ghost_fraction=0.3)
     summary = run_report([run], tmp_path / "report")
     for fitter, t in truth.items():
-        chi2 = summary["fitters"][fitter]["chi2"]
+        chi2 = entry(summary, fitter)["chi2"]
         real = t["chi2_ndf"][t["ok"] & ~t["ghost"]]
         ghost = t["chi2_ndf"][t["ok"] & t["ghost"]]
         assert chi2["has_ghosts"] and chi2["note"] is None
@@ -160,12 +161,12 @@ def test_chi2_scan_with_ghosts(tmp_path):
         for c, eff, rej in zip(scan["cuts"], scan["real_efficiency"], scan["ghost_rejection"]):
             assert eff == pytest.approx(np.mean(real < c))
             assert rej == pytest.approx(np.mean(ghost >= c))
-        assert summary["fitters"][fitter]["tracks"]["failed"] == int((~t["ok"]).sum())
+        assert entry(summary, fitter)["tracks"]["failed"] == int((~t["ok"]).sum())
     # no dataset: the sections that need it say so
-    assert not summary["fitters"]["reference"]["mass"]["available"]
-    assert "dataset" in summary["fitters"]["reference"]["efficiency"]["note"]
+    assert not entry(summary, "reference")["mass"]["available"]
+    assert "dataset" in entry(summary, "reference")["efficiency"]["note"]
     # one run, both fitters: the speed-up follows the §12 protocol
-    timing = summary["fitters"]["parametrized"]["timing"]
+    timing = entry(summary, "parametrized")["timing"]
     assert timing["same_run_as_reference"] is True and timing["speed_up_vs_reference"] == pytest.approx(2.0)
 
 
@@ -173,7 +174,7 @@ def test_run_without_mc(tmp_path):
     run = tmp_path / "run"
     write_synthetic_run(run, fitters=("reference",), has_mc=False)
     summary = run_report([run], tmp_path / "report")
-    rep = summary["fitters"]["reference"]
+    rep = entry(summary, "reference")
     assert not rep["resolution"]["available"] and "no MC" in rep["resolution"]["note"]
     assert not rep["pulls"]["available"]
     assert not rep["chi2"]["has_mc"] and rep["chi2"]["real"] is None and rep["chi2"]["all"]["n"] > 500
@@ -186,9 +187,44 @@ def test_tiny_run_has_no_fits_but_a_report(tmp_path):
     run = tmp_path / "run"
     write_synthetic_run(run, fitters=("parametrized", "reference"), n_tracks=8, ghost_fraction=0.0)
     summary = run_report([run], tmp_path / "report")
-    pulls = summary["fitters"]["parametrized"]["pulls"]["parameters"]["x"]
+    pulls = entry(summary, "parametrized")["pulls"]["parameters"]["x"]
     assert pulls["n"] <= 8 and pulls["width"] is None and pulls["rms"] is not None
-    bins = summary["fitters"]["parametrized"]["resolution"]["variables"]["x"]["bins"]
+    bins = entry(summary, "parametrized")["resolution"]["variables"]["x"]["bins"]
     assert all(v is None for v in bins["core_sigma"])
     assert (tmp_path / "report" / "index.html").is_file()
     json.dumps(summary, allow_nan=False)  # undefined numbers are None, never NaN
+
+
+def test_same_fitter_in_two_labelled_runs(telescope_runs, tmp_path, capsys):
+    """`pkf report A:default B:tuned` with the same fitter in both (issue 17): both entries, the
+    first is the reference, and the ratio of identical runs is exactly 1 in every p bin."""
+    run = telescope_runs["parametrized"]
+    out = tmp_path / "report"
+    assert main(["report", f"{run}:default", f"{run}:tuned", "--out", str(out)]) == 0
+    summary = read_summary(out)
+    assert summary["entry_order"] == ["default/parametrized", "tuned/parametrized"]
+    assert summary["reference"] == "default/parametrized" and summary["warnings"] == []
+    tuned = summary["entries"]["tuned/parametrized"]
+    default = summary["entries"]["default/parametrized"]
+    assert tuned["label"] == "tuned" and tuned["fitter"] == "parametrized"
+    ratios = tuned["resolution"]["ratio_to_reference"]["dp_over_p"]["core_sigma"]
+    filled = [r for r in ratios if r is not None]
+    assert len(filled) >= 3 and all(r == pytest.approx(1.0, abs=1e-12) for r in filled)
+    assert default["resolution"]["ratio_to_reference"] is None
+    assert (out / "resolution.png").is_file()
+    assert sorted(p.name for p in out.glob("pulls_*.png")) == ["pulls_default_parametrized.png",
+                                                                "pulls_tuned_parametrized.png"]
+
+
+def test_reference_option_and_dataset_warning(telescope_runs, bs_run, tmp_path, capsys):
+    """--reference picks the entry; runs of different datasets give one warning line with both hashes."""
+    out = tmp_path / "report"
+    args = ["report", f"{telescope_runs['reference']}:tele", f"{bs_run}:bs", "--out", str(out), "--reference", "bs"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    summary = read_summary(out)
+    assert summary["reference"] == "bs/reference"
+    hashes = [r["dataset_hash"] for r in summary["runs"]]
+    assert len(set(hashes)) == 2 and all(hashes)
+    assert err.count("pkf: warning: ") == 1 and all(h in err for h in hashes), err
+    assert summary["entries"]["tele/reference"]["timing"]["speed_up_vs_reference"] is not None

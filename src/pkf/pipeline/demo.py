@@ -70,15 +70,16 @@ def run_demo(out: Path, events: int, seed: int, overwrite: bool, echo=print) -> 
     echo(f"momentum resolution parametrized/reference: {numbers['resolution_ratio']:.3f}; "
          f"fit speed-up: {numbers['speed_up']:.1f}x (fit passes: parametrized "
          f"{numbers['parametrized']['passes']}, reference {numbers['reference']['passes']})")
-    summary = run_report([run_dir], out / "report", overwrite=overwrite)
+    summary = run_report([(run_dir, "demo")], out / "report", overwrite=overwrite)
     for name in DEMO_FITTERS:
-        fit = (summary["fitters"][name].get("mass") or {}).get("fit") or {}
+        mass = summary["entries"][f"demo/{name}"].get("mass") or {}
+        fit = mass.get("fit") or {}
         if fit.get("sigma") is not None:
             echo(f"{name:>12}: B_s mass resolution {fit['sigma']:.1f} ± {fit.get('sigma_error') or 0:.1f} MeV "
-                 f"from {summary['fitters'][name]['mass'].get('n_candidates')} candidates")
+                 f"from {mass.get('n_candidates')} candidates")
         else:
-            echo(f"{name:>12}: no B_s mass fit ({(summary['fitters'][name].get('mass') or {}).get('note', 'too few candidates')})")
-    common = (summary["fitters"]["parametrized"].get("mass") or {}).get("ratio_to_reference")
+            echo(f"{name:>12}: no B_s mass fit ({mass.get('note', 'too few candidates')})")
+    common = (summary["entries"]["demo/parametrized"].get("mass") or {}).get("ratio_to_reference")
     if common and common.get("sigma_ratio") is not None:
         error = common.get("sigma_ratio_error")
         numbers["mass_resolution_ratio"] = common["sigma_ratio"]

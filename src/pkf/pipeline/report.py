@@ -13,7 +13,7 @@ from pathlib import Path
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir, staged_output_dir
 from pkf.report.html import render_html
 from pkf.report.metrics import compute_report
-from pkf.report.runs import load_runs
+from pkf.report.runs import load_runs, parse_run_spec
 
 __all__ = ["run_report", "REPORT_FILES"]
 
@@ -21,29 +21,37 @@ __all__ = ["run_report", "REPORT_FILES"]
 REPORT_FILES = ("index.html", "summary.json")
 
 
-def run_report(run_dirs: list[Path], out: Path, overwrite: bool = False) -> dict:
-    """Write the report of the runs ``run_dirs`` into the directory ``out``; return the summary.
+def run_report(run_specs: list, out: Path, overwrite: bool = False, reference: str | None = None,
+               echo=None) -> dict:
+    """Write the report of the runs ``run_specs`` into the directory ``out``; return the summary.
 
     Args:
-        run_dirs: run directories of `pkf reconstruct` (several fitters in one run,
-            or one run per fitter; each fitter in only one run).
+        run_specs: run directories of `pkf reconstruct`, each a path, ``"RUN:LABEL"`` or a
+            (path, label) pair (:func:`pkf.report.runs.parse_run_spec`); the same fitter may
+            appear in several runs, whose labels must differ.
         out: report directory to create (``index.html``, ``summary.json``, PNG plots).
         overwrite: replace an existing non-empty ``out``.
+        reference: ``LABEL/FITTER`` or ``LABEL`` of the entry that ratios compare with
+            (default: the first ``reference`` fitter, else the first entry).
+        echo: called with each warning line (e.g. runs from different datasets), if given.
 
     Returns:
         the summary (the contents of summary.json, before NaN → null).
 
     Raises:
-        InputError: bad or incomplete run directory, the same fitter twice, a
-            malformed dataset, or an ``out`` that cannot be written (one line;
-            nothing is written).
+        InputError: bad or incomplete run directory, two runs with one label, an unknown
+            reference, a malformed dataset, or an ``out`` that cannot be written (one
+            line; nothing is written).
     """
-    run_dirs = [Path(p) for p in run_dirs]
+    run_dirs = [parse_run_spec(spec)[0] for spec in run_specs]
     check_output_dir(out, overwrite, inputs=run_dirs)
-    runs = load_runs(run_dirs)
+    runs = load_runs(run_specs)
     inputs = [*run_dirs, *(run.dataset_path for run in runs)]
     check_output_apart(out, inputs)
-    data = compute_report(runs)
+    data = compute_report(runs, reference)
+    for line in data.summary["warnings"]:
+        if echo:
+            echo(line)
 
     from pkf.report.plots import make_plots  # matplotlib is imported only when a report is made
 

@@ -83,7 +83,7 @@ def _figures(plots: list[Plot]) -> str:
 
 def _notes(summary: dict, section: str) -> str:
     notes = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         note = rep[section].get("note")
         if note:
             notes.append(f'<p class="note">{_esc(name)}: {_esc(note)}</p>')
@@ -98,7 +98,7 @@ def _resolution(summary: dict) -> str:
                                     ("y", "y", 1000.0, "µm"), ("tx", "t<sub>x</sub>", 1000.0, "mrad"),
                                     ("ty", "t<sub>y</sub>", 1000.0, "mrad")):
         rows = []
-        for name, rep in summary["fitters"].items():
+        for name, rep in summary["entries"].items():
             res = rep["resolution"]
             if not res["available"]:
                 continue
@@ -116,14 +116,14 @@ def _resolution(summary: dict) -> str:
                             + [_num(x, ".3f") for x in ratio[var]["core_sigma"]])
             rows.append([f"{_esc(name)} tracks", _num(v["all"]["n"])] + [_num(x) for x in v["bins"]["n"]])
         if rows:
-            parts.append(f"<h3>{title} [{unit}]</h3>" + _table(["fitter", "all p"] + [f"{lab} GeV" for lab in labels],
+            parts.append(f"<h3>{title} [{unit}]</h3>" + _table(["entry", "all p"] + [f"{lab} GeV" for lab in labels],
                                                                 rows))
     return "".join(parts)
 
 
 def _pulls(summary: dict) -> str:
     rows = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         if not rep["pulls"]["available"]:
             continue
         for par, s in rep["pulls"]["parameters"].items():
@@ -132,12 +132,12 @@ def _pulls(summary: dict) -> str:
                          _num(s["n_core"]), _num(s["valid"])])
     if not rows:
         return ""
-    return _table(["fitter", "parameter", "mean", "width", "RMS", "tracks", "in core", "fit valid"], rows, left=2)
+    return _table(["entry", "parameter", "mean", "width", "RMS", "tracks", "in core", "fit valid"], rows, left=2)
 
 
 def _chi2(summary: dict) -> str:
     rows = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         c = rep["chi2"]
         for kind in ("real", "ghost", "all"):
             d = c.get(kind)
@@ -145,10 +145,10 @@ def _chi2(summary: dict) -> str:
                 continue
             rows.append([_esc(name), kind, _num(d["n"]), _num(d["mean"], ".3f"), _num(d["median"], ".3f"),
                          _num(d["q90"], ".3f"), _num(d["q99"], ".3f")])
-    parts = [_table(["fitter", "tracks", "n", "mean", "median", "90% quantile", "99% quantile"], rows, left=2)]
+    parts = [_table(["entry", "tracks", "n", "mean", "median", "90% quantile", "99% quantile"], rows, left=2)]
     cuts = summary["settings"]["chi2_ndf_cuts"]
     scan_rows = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         scan = rep["chi2"]["cut_scan"]
         if scan.get("real_efficiency") is not None:
             scan_rows.append([_esc(name), "real efficiency"] + [_num(v, ".3f") for v in scan["real_efficiency"]])
@@ -157,14 +157,14 @@ def _chi2(summary: dict) -> str:
         if scan.get("all_efficiency") is not None:
             scan_rows.append([_esc(name), "track efficiency"] + [_num(v, ".3f") for v in scan["all_efficiency"]])
     if scan_rows:
-        parts.append("<h3>Cut χ²/ndf &lt; c</h3>" + _table(["fitter", "fraction"] + [f"{c:g}" for c in cuts],
+        parts.append("<h3>Cut χ²/ndf &lt; c</h3>" + _table(["entry", "fraction"] + [f"{c:g}" for c in cuts],
                                                            scan_rows, left=2))
     return "".join(parts)
 
 
 def _mass(summary: dict) -> str:
     rows = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         m = rep["mass"]
         fit = m.get("fit")
         if fit is None:
@@ -175,10 +175,10 @@ def _mass(summary: dict) -> str:
                      _pm(fit["n_background"], fit["n_background_error"], ".1f"), _esc(fit["status"])])
     if not rows:
         return ""
-    html = _table(["fitter", "state", "B<sub>s</sub> decays", "candidates", "in window", "mean [MeV]", "σ [MeV]",
+    html = _table(["entry", "state", "B<sub>s</sub> decays", "candidates", "in window", "mean [MeV]", "σ [MeV]",
                    "N<sub>sig</sub>", "N<sub>bkg</sub>", "fit status"], rows, left=2)
     ratios = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         cmp_ = rep["mass"].get("ratio_to_reference")
         if not cmp_ or cmp_.get("fit") is None or cmp_.get("reference_fit") is None:
             continue
@@ -188,7 +188,7 @@ def _mass(summary: dict) -> str:
                        _pm(cmp_["sigma_ratio"], cmp_["sigma_ratio_error"], ".3f")])
     if ratios:
         html += ("<h3>σ on the common candidates (the same decays and kaons for both fitters; "
-                 "error: jackknife)</h3>" + _table(["fitter", "common candidates", "σ [MeV]", "σ reference [MeV]",
+                 "error: jackknife)</h3>" + _table(["entry", "common candidates", "σ [MeV]", "σ reference [MeV]",
                                                      "σ / σ reference"], ratios, left=1))
     return html
 
@@ -208,7 +208,7 @@ def _efficiency(summary: dict) -> str:
          "ghost rate (recomputed)", "clone rate (run.json)", "clone rate (recomputed)", "reconstructible"], rows,
         left=2))
     rows = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         e = rep["efficiency"]
         if not e["available"]:
             continue
@@ -220,9 +220,9 @@ def _efficiency(summary: dict) -> str:
         for key, edges_key, title, scale, unit in (("vs_p", "p_edges_mev", "vs p", 1e-3, " GeV"),
                                                    ("vs_eta", "eta_edges", "vs η", 1.0, "")):
             edges = summary["settings"][edges_key]
-            header = ["fitter"] + [f"{lo * scale:g}–{hi * scale:g}{unit}" for lo, hi in zip(edges[:-1], edges[1:])]
+            header = ["entry"] + [f"{lo * scale:g}–{hi * scale:g}{unit}" for lo, hi in zip(edges[:-1], edges[1:])]
             brows = []
-            for name, rep in summary["fitters"].items():
+            for name, rep in summary["entries"].items():
                 e = rep["efficiency"]
                 if not e["available"]:
                     continue
@@ -237,7 +237,7 @@ def _efficiency(summary: dict) -> str:
 
 def _timing(summary: dict) -> str:
     rows = []
-    for name, rep in summary["fitters"].items():
+    for name, rep in summary["entries"].items():
         t = rep["timing"]
         if not t["available"]:
             continue
@@ -248,10 +248,11 @@ def _timing(summary: dict) -> str:
                      _num(t["ns_per_node_ratio"], ".3f"), "–" if same is None else _num(same)])
     if not rows:
         return ""
-    text = ("<p>From run.json <code>timing.fit</code>: measured after JIT warm-up. Speed-up = tracks/s of the "
-            "fitter ÷ tracks/s of the reference; DESIGN §12 asks for ratios from one process run on the same "
-            "tracks (column “same run”).</p>")
-    return text + _table(["fitter", "run", "tracks", "wall [s]", "CPU [s]", "tracks/s", "ns/node",
+    text = ("<p>From run.json <code>timing.fit</code>, measured after JIT warm-up: tracks/s = tracks ÷ CPU "
+            "seconds of the fit kernels summed over workers (so it does not depend on <code>--workers</code>). "
+            "Speed-up = tracks/s of the entry ÷ tracks/s of the reference entry; a fair ratio comes from one run "
+            "on the same tracks (column “same run”).</p>")
+    return text + _table(["entry", "run", "tracks", "wall [s]", "CPU [s]", "tracks/s", "ns/node",
                           "speed-up vs reference", "ns/node ratio", "same run"], rows, left=2)
 
 
@@ -259,17 +260,20 @@ def render_html(summary: dict, plots: dict[str, list[Plot]]) -> str:
     """The index.html text of a report: sections :data:`SECTION_IDS` with figures and tables."""
     tables = {"resolution": _resolution, "pulls": _pulls, "chi2": _chi2, "mass": _mass,
               "efficiency": _efficiency, "timing": _timing}
-    runs_rows = [[_esc(r["path"]), _esc(", ".join(r["fitters"])), _num(r["events"]), _esc(r.get("geometry")),
-                  _esc(r.get("pattern_recognition")), _esc(r["dataset"]), _esc(r["dataset_status"])]
+    runs_rows = [[_esc(r["label"]), _esc(r["path"]), _esc(", ".join(r["fitters"])), _num(r["events"]),
+                  _esc(r.get("geometry")), _esc(r.get("pattern_recognition")), _esc(r["dataset"]),
+                  _esc(r.get("dataset_hash")), _esc(r["dataset_status"])]
                  for r in summary["runs"]]
+    warnings = "".join(f'<p class="note">{_esc(w)}</p>' for w in summary.get("warnings", []))
     body = [
         "<h1>pkf report</h1>",
-        f"<p>pkf {_esc(summary['pkf_version'])}; reference fitter: "
-        f"{_esc(summary['reference_fitter'] or 'none (no ratios or speed-ups)')}. Every number is also in "
+        f"<p>pkf {_esc(summary['pkf_version'])}; entries are LABEL/FITTER; reference entry: "
+        f"{_esc(summary['reference'] or 'none (no ratios or speed-ups)')}. Every number is also in "
         '<a href="summary.json">summary.json</a>.</p>',
         "<nav>" + "".join(f'<a href="#{s}">{s}</a>' for s in SECTION_IDS) + "</nav>",
-        _table(["run", "fitters", "events", "geometry", "pattern", "dataset", "dataset status"], runs_rows,
-               left=7),
+        warnings,
+        _table(["label", "run", "fitters", "events", "geometry", "pattern", "dataset", "dataset hash",
+                "dataset status"], runs_rows, left=9),
     ]
     for section in SECTION_IDS:
         content = _figures(plots.get(section, [])) + _notes(summary, section) + tables[section](summary)

@@ -38,7 +38,7 @@ Conventions
   run level (``runs[i].pattern.recomputed``) if any candidate is matched to it
   (the definition of run.json ``pattern``). p and η are the production momentum's.
   Errors are Clopper–Pearson 68.3% intervals.
-- Speed-up = tracks_per_s(fitter) / tracks_per_s(reference), from run.json
+- Speed-up = tracks_per_s(entry) / tracks_per_s(reference entry), from run.json
   ``timing.fit``; DESIGN §12 asks for ratios from one process run on the same
   tracks, so ``same_run_as_reference`` says whether that holds.
 
@@ -48,21 +48,27 @@ summary.json keys
 -----------------
 Top level:
 
-- ``kind``: ``"report"``; ``pkf_version``; ``reference_fitter``: ``"reference"`` or null.
-- ``fitter_order``: fitter names in run order.
+- ``kind``: ``"report"``; ``pkf_version``; ``reference``: the entry ``LABEL/FITTER`` that
+  ratios and speed-ups compare with (``--reference``; default the first entry of the
+  ``reference`` fitter, else the first entry).
+- ``entry_order``: entry names ``LABEL/FITTER`` in the order of the runs given and, within a
+  run, of run.json ``config.fitters``.
+- ``warnings``: one line per problem a reader should know of (runs from different datasets,
+  with both content hashes).
 - ``settings``: ``resolution_location``, ``pull_location``, ``mass_location``,
   ``p_edges_mev`` (resolution and efficiency bins of p [MeV]), ``eta_edges``,
   ``chi2_ndf_cuts``, ``mass_window_mev`` [lo, hi], ``mass_fit`` (method, text).
-- ``runs``: list, one per run directory given, each with ``path``, ``dataset``,
+- ``runs``: list, one per run directory given, each with ``path``, ``label``, ``dataset``,
+  ``dataset_hash`` (run.json ``input.content_hash``),
   ``dataset_status`` (``"ok"`` or why dataset-based metrics are missing),
   ``geometry``, ``pattern_recognition`` (run.json config.pattern), ``fitters``,
   ``events``, ``has_mc``, ``timing`` (run.json timing per stage, without ``fit``),
   ``pattern`` = {``run_json``: run.json ``pattern`` or null, ``recomputed``:
   {``tracks``, ``reconstructible``, ``found``, ``efficiency``, ``ghost_rate``,
   ``clone_rate``} or null}.
-- ``fitters``: per fitter name:
+- ``entries``: per entry name ``LABEL/FITTER``:
 
-  - ``run``: index into ``runs``.
+  - ``run``: index into ``runs``; ``label``, ``fitter``.
   - ``tracks``: ``total``, ``ok``, ``failed``, ``matched`` (ok and matched), ``ghost`` (ok and ghost).
   - ``resolution``: ``available``, ``note``, ``location``, ``p_edges_mev``,
     ``variables`` → for each of ``dp_over_p`` (dimensionless), ``x``, ``y`` [mm],
@@ -179,14 +185,15 @@ class FitterArrays:
 
 @dataclass
 class ReportData:
-    """The report: ``summary`` (summary.json) and per-fitter arrays for the plots."""
+    """The report: ``summary`` (summary.json) and per-entry (``LABEL/FITTER``) arrays for the plots."""
 
     summary: dict
     arrays: dict[str, FitterArrays]
 
     @property
-    def fitter_order(self) -> list[str]:
-        return list(self.summary["fitters"])
+    def entry_order(self) -> list[str]:
+        """Entry names ``LABEL/FITTER`` in the order of the runs given and their fitters."""
+        return list(self.summary["entries"])
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -703,6 +710,8 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: _DatasetTrut
 
     report = {
         "run": run_index,
+        "label": run.label,
+        "fitter": name,
         "tracks": tracks,
         "resolution": resolution,
         "pulls": pulls,
@@ -734,7 +743,9 @@ def _run_summary(run: RunInput, truth: _DatasetTruth | None) -> dict:
         }
     return {
         "path": str(run.path),
+        "label": run.label,
         "dataset": str(run.dataset_path) if run.dataset_path else None,
+        "dataset_hash": (run.info.get("input") or {}).get("content_hash"),
         "dataset_status": truth.status if truth is not None else "no MC truth in this run",
         "geometry": (run.info.get("input") or {}).get("geometry"),
         "pattern_recognition": config.get("pattern"),
@@ -746,18 +757,85 @@ def _run_summary(run: RunInput, truth: _DatasetTruth | None) -> dict:
     }
 
 
-def compute_report(runs: list[RunInput]) -> ReportData:
-    """All report numbers for the fitters of ``runs`` (validated, fitters distinct).
+def choose_reference(runs: list[RunInput], reference: str | None) -> str:
+    """The entry that ratios and speed-ups compare with.
+
+    ``reference`` is ``LABEL/FITTER`` or ``LABEL`` (then that run's ``reference`` fitter if it
+    has one, else its first). Without it: the first entry whose fitter is the paper's
+    baseline (``reference``), else the first entry.
 
     Raises:
-        InputError: a run's dataset is present but malformed.
+        InputError: ``reference`` names no entry.
     """
-    names = [name for run in runs for name in run.fitters]
-    if len(set(names)) != len(names):  # load_runs already refuses this
-        raise InputError("report: the same fitter appears in two runs")
-    reference = REFERENCE_FITTER if REFERENCE_FITTER in names else None
+    entries = [run.entry(name) for run in runs for name in run.fitters]
+    if reference is None:
+        baseline = [run.entry(REFERENCE_FITTER) for run in runs if REFERENCE_FITTER in run.fitters]
+        return baseline[0] if baseline else entries[0]
+    if reference in entries:
+        return reference
+    for run in runs:
+        if run.label == reference:
+            return run.entry(REFERENCE_FITTER if REFERENCE_FITTER in run.fitters else run.fitters[0])
+    raise InputError(f"--reference {reference}: no such entry (entries: {', '.join(entries)})")
+
+
+def dataset_warnings(runs: list[RunInput]) -> list[str]:
+    """One line when the runs come from different datasets (their content hashes differ)."""
+    hashes = {run.label: (run.info.get("input") or {}).get("content_hash") for run in runs}
+    if len(set(hashes.values())) <= 1:
+        return []
+    shown = ", ".join(f"{label} {h or 'unknown'}" for label, h in hashes.items())
+    return [f"report: the runs come from different datasets (content hashes: {shown}); "
+            "efficiencies and resolutions compare different events"]
+
+
+def _compare_with_reference(entries: dict[str, dict], arrays: dict[str, FitterArrays], reference: str,
+                            dataset_of: dict[str, object]) -> None:
+    """Fill each entry's ``ratio_to_reference`` and speed-up fields against the reference entry."""
+    ref = entries[reference]
+    ref_timing = ref["timing"]
+    for name, rep in entries.items():
+        if name == reference:
+            continue
+        if rep["resolution"]["available"] and ref["resolution"]["available"]:
+            rep["resolution"]["ratio_to_reference"] = {
+                var: {
+                    key: _ratio(rep["resolution"]["variables"][var]["bins"][key],
+                                ref["resolution"]["variables"][var]["bins"][key])
+                    for key in ("rms", "core_sigma")
+                }
+                for var in RESOLUTION_VARIABLES
+            }
+        if (rep["mass"].get("available") and ref["mass"].get("available")
+                and dataset_of[name] is not None and dataset_of[name] == dataset_of[reference]):
+            rep["mass"]["ratio_to_reference"] = _mass_comparison(arrays[name], arrays[reference])
+        timing = rep["timing"]
+        if timing["available"] and ref_timing["available"]:
+            if timing["tracks_per_s"] and ref_timing["tracks_per_s"]:
+                timing["speed_up_vs_reference"] = _f(timing["tracks_per_s"] / ref_timing["tracks_per_s"])
+            if timing["ns_per_node"] and ref_timing["ns_per_node"]:
+                timing["ns_per_node_ratio"] = _f(ref_timing["ns_per_node"] / timing["ns_per_node"])
+            timing["same_run_as_reference"] = rep["run"] == ref["run"]
+    if ref_timing["available"]:
+        ref_timing["speed_up_vs_reference"] = 1.0 if ref_timing["tracks_per_s"] else None
+        ref_timing["ns_per_node_ratio"] = 1.0 if ref_timing["ns_per_node"] else None
+        ref_timing["same_run_as_reference"] = True
+
+
+def compute_report(runs: list[RunInput], reference: str | None = None) -> ReportData:
+    """All report numbers for the entries (label, fitter) of ``runs`` (validated, labels distinct).
+
+    reference: ``LABEL/FITTER`` or ``LABEL`` of the entry to compare with (:func:`choose_reference`).
+
+    Raises:
+        InputError: a run's dataset is present but malformed, or ``reference`` names no entry.
+    """
+    labels = [run.label for run in runs]
+    if len(set(labels)) != len(labels):  # load_runs already refuses this
+        raise InputError("report: two runs have the same label")
+    reference = choose_reference(runs, reference)
     truths: dict[Path, _DatasetTruth] = {}
-    fitters: dict[str, dict] = {}
+    entries: dict[str, dict] = {}
     arrays: dict[str, FitterArrays] = {}
     run_summaries = []
     dataset_of: dict[str, Path | None] = {}
@@ -771,44 +849,17 @@ def compute_report(runs: list[RunInput]) -> ReportData:
             truth = truths[key]
         run_summaries.append(_run_summary(run, truth))
         for name in run.fitters:
-            fitters[name], arrays[name] = _fitter_report(run, index, name, truth or _DatasetTruth("no MC truth"))
-            dataset_of[name] = key if truth is not None else None
-
-    if reference is not None:
-        ref = fitters[reference]
-        ref_run = ref["run"]
-        ref_timing = ref["timing"]
-        for name, rep in fitters.items():
-            if name == reference:
-                continue
-            if rep["resolution"]["available"] and ref["resolution"]["available"]:
-                rep["resolution"]["ratio_to_reference"] = {
-                    var: {
-                        key: _ratio(rep["resolution"]["variables"][var]["bins"][key],
-                                    ref["resolution"]["variables"][var]["bins"][key])
-                        for key in ("rms", "core_sigma")
-                    }
-                    for var in RESOLUTION_VARIABLES
-                }
-            if rep["mass"].get("available") and ref["mass"].get("available") and dataset_of[name] == dataset_of[reference]:
-                rep["mass"]["ratio_to_reference"] = _mass_comparison(arrays[name], arrays[reference])
-            timing = rep["timing"]
-            if timing["available"] and ref_timing["available"]:
-                if timing["tracks_per_s"] and ref_timing["tracks_per_s"]:
-                    timing["speed_up_vs_reference"] = _f(timing["tracks_per_s"] / ref_timing["tracks_per_s"])
-                if timing["ns_per_node"] and ref_timing["ns_per_node"]:
-                    timing["ns_per_node_ratio"] = _f(ref_timing["ns_per_node"] / timing["ns_per_node"])
-                timing["same_run_as_reference"] = rep["run"] == ref_run
-        if ref_timing["available"]:
-            ref_timing["speed_up_vs_reference"] = 1.0 if ref_timing["tracks_per_s"] else None
-            ref_timing["ns_per_node_ratio"] = 1.0 if ref_timing["ns_per_node"] else None
-            ref_timing["same_run_as_reference"] = True
+            entry = run.entry(name)
+            entries[entry], arrays[entry] = _fitter_report(run, index, name, truth or _DatasetTruth("no MC truth"))
+            dataset_of[entry] = key if truth is not None else None
+    _compare_with_reference(entries, arrays, reference, dataset_of)
 
     summary = {
         "kind": "report",
         "pkf_version": pkf.__version__,
-        "reference_fitter": reference,
-        "fitter_order": names,
+        "reference": reference,
+        "entry_order": list(entries),
+        "warnings": dataset_warnings(runs),
         "settings": {
             "resolution_location": RESOLUTION_LOCATION,
             "pull_location": PULL_LOCATION,
@@ -820,6 +871,6 @@ def compute_report(runs: list[RunInput]) -> ReportData:
             "mass_fit": "Gaussian + linear background, extended unbinned maximum likelihood (iminuit)",
         },
         "runs": run_summaries,
-        "fitters": fitters,
+        "entries": entries,
     }
     return ReportData(summary, arrays)

@@ -99,11 +99,11 @@ def _no_data(ax, text: str) -> None:
 
 def _plot_resolution(data: ReportData, out: Path) -> list[Plot]:
     summary = data.summary
-    names = [n for n in data.fitter_order if summary["fitters"][n]["resolution"]["available"]]
+    names = [n for n in data.entry_order if summary["entries"][n]["resolution"]["available"]]
     if not names:
         return []
-    reference = summary["reference_fitter"]
-    colors = _colors(data.fitter_order)
+    reference = summary["reference"]
+    colors = _colors(data.entry_order)
     edges = P_EDGES_MEV / 1000.0
     centres, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
     fig, axes = plt.subplots(2, 3, figsize=(33, 12), gridspec_kw={"height_ratios": [3, 1], "hspace": 0.05},
@@ -112,7 +112,7 @@ def _plot_resolution(data: ReportData, out: Path) -> list[Plot]:
         ax, rax = axes[0, col], axes[1, col]
         top, ratio_values = [], []
         for i, name in enumerate(names):
-            res = summary["fitters"][name]["resolution"]
+            res = summary["entries"][name]["resolution"]
             bins = res["variables"][var]["bins"]
             rms = np.array([np.nan if v is None else v * scale for v in bins["rms"]])
             core = np.array([np.nan if v is None else v * scale for v in bins["core_sigma"]])
@@ -158,8 +158,8 @@ def _plot_resolution(data: ReportData, out: Path) -> list[Plot]:
 
 def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
     plots = []
-    for name in data.fitter_order:
-        section = data.summary["fitters"][name]["pulls"]
+    for name in data.entry_order:
+        section = data.summary["entries"][name]["pulls"]
         if not section["available"]:
             continue
         arrays = data.arrays[name]
@@ -201,7 +201,7 @@ def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
 
 
 def _plot_chi2(data: ReportData, out: Path) -> list[Plot]:
-    names = data.fitter_order
+    names = data.entry_order
     if not names:
         return []
     colors = _colors(names)
@@ -211,7 +211,7 @@ def _plot_chi2(data: ReportData, out: Path) -> list[Plot]:
     any_ghosts = False
     for ax, name in zip(axes, names):
         arrays = data.arrays[name]
-        section = data.summary["fitters"][name]["chi2"]
+        section = data.summary["entries"][name]["chi2"]
         series = ([("real", arrays.chi2_ndf_real, "black"), ("ghost", arrays.chi2_ndf_ghost, "#FF3333")]
                   if section["has_mc"] else [("all tracks", arrays.chi2_ndf_all, "black")])
         drawn = False
@@ -238,7 +238,7 @@ def _plot_chi2(data: ReportData, out: Path) -> list[Plot]:
     ax = axes[-1]
     cuts = np.asarray(CHI2_NDF_CUTS)
     for i, name in enumerate(names):
-        scan = data.summary["fitters"][name]["chi2"]["cut_scan"]
+        scan = data.summary["entries"][name]["chi2"]["cut_scan"]
         marker = _MARKERS[i % len(_MARKERS)]
         eff = scan.get("real_efficiency") or scan.get("all_efficiency")
         if eff is None:
@@ -272,10 +272,10 @@ def _plot_chi2(data: ReportData, out: Path) -> list[Plot]:
 
 
 def _plot_mass(data: ReportData, out: Path) -> list[Plot]:
-    names = [n for n in data.fitter_order if data.arrays[n].masses.size]
+    names = [n for n in data.entry_order if data.arrays[n].masses.size]
     if not names:
         return []
-    colors = _colors(data.fitter_order)
+    colors = _colors(data.entry_order)
     lo, hi = MASS_WINDOW_MEV
     nbins = int(round((hi - lo) / _MASS_BIN_MEV))
     fig, axes = plt.subplots(1, len(names), figsize=(12 * len(names), 9), squeeze=False)
@@ -311,16 +311,16 @@ def _plot_mass(data: ReportData, out: Path) -> list[Plot]:
 
 
 def _plot_efficiency(data: ReportData, out: Path) -> list[Plot]:
-    names = [n for n in data.fitter_order if data.summary["fitters"][n]["efficiency"]["available"]]
+    names = [n for n in data.entry_order if data.summary["entries"][n]["efficiency"]["available"]]
     if not names:
         return []
-    colors = _colors(data.fitter_order)
+    colors = _colors(data.entry_order)
     fig, axes = plt.subplots(1, 2, figsize=(24, 9))
     for ax, key, edges, label in ((axes[0], "vs_p", P_EDGES_MEV / 1000.0, r"$p$ [GeV]"),
                                   (axes[1], "vs_eta", ETA_EDGES, r"$\eta$")):
         centres, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
         for i, name in enumerate(names):
-            section = data.summary["fitters"][name]["efficiency"][key]
+            section = data.summary["entries"][name]["efficiency"][key]
             eff = np.array([np.nan if v is None else v for v in section["efficiency"]])
             lo = np.array([0.0 if v is None else v for v in section["error_low"]])
             hi = np.array([0.0 if v is None else v for v in section["error_high"]])

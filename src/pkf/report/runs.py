@@ -1,12 +1,13 @@
 """Reading run directories for a report: validated run tables, run.json and the fitters they hold.
 
 A report (DESIGN §11) accepts one or more run directories (output of
-``pkf reconstruct``, DESIGN §6): several fitters in one run, or one run per fitter.
-Each run table is one Parquet file (``chi2.parquet``) or, as `pkf reconstruct` writes
-it, a directory of partition files (``chi2/part-FFFF-BBBBB.parquet``, read in order).
-Fitters are merged by name; the same fitter in two runs is an error, since the
-report could not tell which one to show. Every problem is a one-line
-:class:`~pkf.errors.InputError` raised before anything is written.
+``pkf reconstruct``, DESIGN §6), each with a label (``RUN:LABEL``; default: the run
+folder's name). Each run table is one Parquet file (``chi2.parquet``) or, as `pkf reconstruct`
+writes it, a directory of partition files (``chi2/part-FFFF-BBBBB.parquet``, read in order).
+The report's entries are (label, fitter) pairs, ``LABEL/FITTER``: the same fitter may appear
+in several runs (shipped against tuned parameters, two datasets, two pileups); labels must
+differ. Every problem is a one-line :class:`~pkf.errors.InputError` raised before anything
+is written.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pkf.errors import InputError
 from pkf.io.reader import find_table, read_table
 from pkf.io.schemas import CHI2, PULLS, STATES
 
-__all__ = ["RunInput", "load_run", "load_runs", "REFERENCE_FITTER"]
+__all__ = ["RunInput", "load_run", "load_runs", "parse_run_spec", "REFERENCE_FITTER"]
 
 #: The fitter that resolutions and speeds are compared with (the paper's "default Kalman").
 REFERENCE_FITTER = "reference"
@@ -38,6 +39,7 @@ class RunInput:
 
     Attributes:
         path: the run directory.
+        label: the run's name in the report (``RUN:LABEL``, default the folder's name).
         info: contents of ``run.json``.
         fitters: fitter names in the run, in the order of run.json ``config.fitters``.
         chi2: the ``chi2`` table (:data:`~pkf.io.schemas.CHI2`).
@@ -54,6 +56,11 @@ class RunInput:
     states: pa.Table
     pulls: pa.Table | None
     has_mc: bool
+    label: str = ""
+
+    def entry(self, fitter: str) -> str:
+        """The report entry of one of the run's fitters: ``LABEL/FITTER``."""
+        return f"{self.label}/{fitter}"
 
     @property
     def dataset_path(self) -> Path | None:
@@ -85,7 +92,32 @@ def _read_run_json(path: Path) -> dict:
     return info
 
 
-def load_run(path: str | os.PathLike) -> RunInput:
+def parse_run_spec(spec: str | os.PathLike | tuple) -> tuple[Path, str]:
+    """``RUN[:LABEL]`` (or a path, or a (path, label) pair) → (run directory, label).
+
+    A text that names an existing path is a path, even if it holds a colon; otherwise the
+    label follows the last colon. The default label is the run folder's name. Labels may
+    not hold ``/`` (it separates label and fitter in entry names) and may not be empty.
+
+    Raises:
+        InputError: an empty label or one with ``/``.
+    """
+    if isinstance(spec, tuple):
+        path, label = Path(spec[0]), str(spec[1])
+    else:
+        text = os.fspath(spec)
+        if ":" in text and not Path(text).exists():
+            path_text, label = text.rsplit(":", 1)
+            path = Path(path_text)
+        else:
+            path, label = Path(text), Path(os.path.abspath(text)).name
+    if not label or "/" in label:
+        raise InputError(f"{os.fspath(spec) if not isinstance(spec, tuple) else spec[0]}: run label {label!r} "
+                         "must be non-empty and without '/' (RUN:LABEL)")
+    return path, label
+
+
+def load_run(path: str | os.PathLike, label: str | None = None) -> RunInput:
     """Read and validate one run directory.
 
     Raises:
@@ -124,30 +156,30 @@ def load_run(path: str | os.PathLike) -> RunInput:
         unknown = set(table.column("fitter").to_pylist()) - set(fitters)
         if unknown:
             raise InputError(f"{path}: table {name!r} has fitter {sorted(unknown)[0]!r} that chi2 does not have")
-    return RunInput(path, info, fitters, chi2, states, pulls, has_mc)
+    label = Path(os.path.abspath(path)).name if label is None else label
+    return RunInput(path, info, fitters, chi2, states, pulls, has_mc, label)
 
 
-def load_runs(paths) -> list[RunInput]:
-    """Read several run directories; each fitter may appear in only one of them.
+def load_runs(specs) -> list[RunInput]:
+    """Read several run directories, each given as ``RUN[:LABEL]`` (:func:`parse_run_spec`).
+
+    The same fitter may appear in several runs; the labels tell them apart.
 
     Raises:
-        InputError: no run given, a bad run directory (:func:`load_run`), or the
-            same fitter in two runs (e.g. the same run given twice).
+        InputError: no run given, a bad run directory (:func:`load_run`), or two runs
+            with the same label (e.g. two folders both called ``run``: label them).
     """
-    paths = [Path(p) for p in paths]
-    if not paths:
+    parsed = [parse_run_spec(s) for s in specs]
+    if not parsed:
         raise InputError("report: give at least one run directory")
     runs = []
     owner: dict[str, Path] = {}
-    for path in paths:
-        run = load_run(path)
-        for fitter in run.fitters:
-            if fitter in owner:
-                raise InputError(
-                    f"{path}: fitter {fitter!r} is also in {owner[fitter]}; a report shows each fitter once"
-                )
-            owner[fitter] = path
-        runs.append(run)
+    for path, label in parsed:
+        if label in owner:
+            raise InputError(f"{path}: label {label!r} is also the label of {owner[label]}; "
+                             "give each run its own label as RUN:LABEL")
+        owner[label] = path
+        runs.append(load_run(path, label))
     return runs
 
 
