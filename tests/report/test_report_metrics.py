@@ -228,3 +228,31 @@ def test_reference_option_and_dataset_warning(telescope_runs, bs_run, tmp_path, 
     assert len(set(hashes)) == 2 and all(hashes)
     assert err.count("pkf: warning: ") == 1 and all(h in err for h in hashes), err
     assert summary["entries"]["tele/reference"]["timing"]["speed_up_vs_reference"] is not None
+
+
+def test_resolution_figure_shows_every_core_width(telescope_runs):
+    """Issue 17: the δp/p core width of every p bin lies inside the plotted range (the log axis
+    sized to the RMS used to hide them), and the ratio panel is bounded to the ratios."""
+    import matplotlib.pyplot as plt
+
+    from pkf.report.metrics import compute_report
+    from pkf.report.plots import resolution_figure
+    from pkf.report.runs import load_runs
+
+    data = compute_report(load_runs([telescope_runs["parametrized"], telescope_runs["reference"]]))
+    fig = resolution_figure(data)
+    try:
+        core_ax, ratio_ax = fig.axes[0], fig.axes[3]  # δp/p column: core, ratio (3 × 3 grid, row-major)
+        lo, hi = core_ax.get_ylim()
+        assert core_ax.get_yscale() == "linear"
+        cores = [100 * v for e in data.summary["entries"].values()
+                 for v in e["resolution"]["variables"]["dp_over_p"]["bins"]["core_sigma"] if v is not None]
+        assert len(cores) >= 4 and all(lo <= c <= hi for c in cores), (lo, hi, cores)
+        assert hi < 1.5 * max(cores)  # sized to the cores, not to the RMS
+        ratios = [v for e in data.summary["entries"].values() if e["resolution"]["ratio_to_reference"]
+                  for v in e["resolution"]["ratio_to_reference"]["dp_over_p"]["core_sigma"] if v is not None]
+        rlo, rhi = ratio_ax.get_ylim()
+        assert ratios and all(rlo <= r <= rhi for r in ratios)
+        assert rhi - rlo < 2.0 * (max(ratios + [1.0]) - min(ratios + [1.0])) + 0.05
+    finally:
+        plt.close(fig)

@@ -132,7 +132,7 @@ def _pulls(summary: dict) -> str:
                          _num(s["n_core"]), _num(s["valid"])])
     if not rows:
         return ""
-    return _table(["entry", "parameter", "mean", "width", "RMS", "tracks", "in core", "fit valid"], rows, left=2)
+    return _table(["entry", "parameter", "mean", "width", "RMS", "tracks", "in core", "Gaussian core"], rows, left=2)
 
 
 def _chi2(summary: dict) -> str:

@@ -38,7 +38,7 @@ from pkf.report.metrics import (  # noqa: E402
     ReportData,
 )
 
-__all__ = ["Plot", "make_plots", "plot_file_name", "DPI"]
+__all__ = ["Plot", "make_plots", "plot_file_name", "resolution_figure", "DPI"]
 
 #: Resolution of the PNG files [dots per inch] (LHCb2 style figures are 12 × 9 inch).
 DPI = 50
@@ -52,6 +52,8 @@ _RESOLUTION_PANELS = (
 )
 _PULL_LABELS = {"x": "$x$", "y": "$y$", "tx": "$t_x$", "ty": "$t_y$", "qop": "$q/p$"}
 _MASS_BIN_MEV = 10.0
+#: Ratio panels show ratios within [1/limit, limit], sized to them; others are counted in the panel.
+_RATIO_LIMIT = 3.0
 
 
 @dataclass(frozen=True)
@@ -97,59 +99,96 @@ def _no_data(ax, text: str) -> None:
 # ----------------------------------------------------------------------------- Fig. 1
 
 
-def _plot_resolution(data: ReportData, out: Path) -> list[Plot]:
+def _values(values: list, scale: float = 1.0) -> np.ndarray:
+    """A summary list (None where undefined) as floats (NaN where undefined), times ``scale``."""
+    return np.array([np.nan if v is None else v * scale for v in values], dtype=float)
+
+
+def _bounded_ylim(ax, values: np.ndarray, floor: float | None = None, pad: float = 0.15) -> None:
+    """Y range sized to the finite ``values`` with ``pad`` of their span (or of their size) around them."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return
+    lo, hi = float(finite.min()), float(finite.max())
+    span = (hi - lo) or abs(hi) or 1.0
+    lo, hi = lo - pad * span, hi + pad * span
+    ax.set_ylim(max(lo, floor) if floor is not None else lo, hi)
+
+
+def resolution_figure(data: ReportData):
+    """Fig. 1 as a matplotlib figure (None without resolution data): per variable (columns δp/p,
+    x, tx), the Gaussian core σ vs p on a linear axis sized to the cores (the paper's quantity),
+    its ratio to the reference entry bounded to the ratios, and the RMS in its own panel (log axis
+    when it spans more than a factor 20: it carries the tails)."""
     summary = data.summary
     names = [n for n in data.entry_order if summary["entries"][n]["resolution"]["available"]]
     if not names:
-        return []
+        return None
     reference = summary["reference"]
     colors = _colors(data.entry_order)
     edges = P_EDGES_MEV / 1000.0
     centres, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
-    fig, axes = plt.subplots(2, 3, figsize=(33, 12), gridspec_kw={"height_ratios": [3, 1], "hspace": 0.05},
-                             sharex="col")
+    fig, axes = plt.subplots(3, 3, figsize=(33, 20), sharex="col",
+                             gridspec_kw={"height_ratios": [3, 1.2, 2], "hspace": 0.08})
     for col, (var, label, scale) in enumerate(_RESOLUTION_PANELS):
-        ax, rax = axes[0, col], axes[1, col]
-        top, ratio_values = [], []
+        ax, rax, rms_ax = axes[0, col], axes[1, col], axes[2, col]
+        cores, ratios, rmss = [], [], []
         for i, name in enumerate(names):
             res = summary["entries"][name]["resolution"]
             bins = res["variables"][var]["bins"]
-            rms = np.array([np.nan if v is None else v * scale for v in bins["rms"]])
-            core = np.array([np.nan if v is None else v * scale for v in bins["core_sigma"]])
-            top.extend(rms[np.isfinite(rms)])
-            marker = _MARKERS[i % len(_MARKERS)]
-            ax.errorbar(centres, rms, xerr=half, fmt=marker, color=colors[name], label=f"{name} RMS")
-            ax.errorbar(centres, core, xerr=half, fmt=marker, color=colors[name], mfc="none", alpha=0.8,
-                        label=f"{name} core $\\sigma$")
+            marker, color = _MARKERS[i % len(_MARKERS)], colors[name]
+            core = _values(bins["core_sigma"], scale)
+            core_err = _values(bins["core_sigma_error"], scale)
+            rms = _values(bins["rms"], scale)
+            cores.append(core)
+            rmss.append(rms)
+            ax.errorbar(centres, core, xerr=half, yerr=np.nan_to_num(core_err), fmt=marker, color=color,
+                        label=name)
+            rms_ax.errorbar(centres, rms, xerr=half, fmt=marker, color=color, mfc="none", label=name)
             ratio = res.get("ratio_to_reference")
             if ratio is not None:
-                r_rms = np.array([np.nan if v is None else v for v in ratio[var]["rms"]])
-                r_core = np.array([np.nan if v is None else v for v in ratio[var]["core_sigma"]])
-                ratio_values.extend(v for v in np.r_[r_rms, r_core] if np.isfinite(v))
-                rax.errorbar(centres, r_rms, xerr=half, fmt=marker, color=colors[name])
-                rax.errorbar(centres, r_core, xerr=half, fmt=marker, color=colors[name], mfc="none", alpha=0.8)
-        positive = [v for v in top if v > 0]
-        if positive and max(positive) / min(positive) > 20:
-            ax.set_yscale("log")
-            ax.set_ylim(min(positive) / 2, max(positive) * 4)
-        else:
-            ax.set_ylim(0, 1.4 * max(positive) if positive else 1)
-        ax.set_ylabel(label)
-        ax.set_xlim(edges[0], edges[-1])
-        ax.set_xscale("log")
+                r_core = _values(ratio[var]["core_sigma"])
+                ratios.append(r_core)
+                rax.errorbar(centres, r_core, xerr=half, fmt=marker, color=color)
+        _bounded_ylim(ax, np.concatenate(cores), floor=0.0)
+        ax.set_ylabel(f"core {label}")
         ax.legend(fontsize=16, loc="upper right")
         rax.axhline(1.0, color="grey", lw=1.5, ls="--")
-        spread = max([abs(v - 1.0) for v in ratio_values] + [0.1])
-        rax.set_ylim(1.0 - 1.2 * min(spread, 0.9), 1.0 + 1.2 * spread)
-        rax.set_ylabel(f"/ {reference}" if reference else "ratio", fontsize=20)
-        if reference is None:
-            rax.text(0.5, 0.5, "no reference fitter in these runs", transform=rax.transAxes, ha="center",
-                     va="center", fontsize=18)
-        rax.set_xlabel(r"$p_\mathrm{true}$ [GeV]")
-        rax.set_xscale("log")
+        if ratios:
+            all_ratios = np.concatenate(ratios)
+            shown = all_ratios[(all_ratios > 1 / _RATIO_LIMIT) & (all_ratios < _RATIO_LIMIT)]
+            _bounded_ylim(rax, np.r_[shown, 1.0], pad=0.25)
+            outside = int(np.sum(np.isfinite(all_ratios))) - shown.size
+            if outside:
+                rax.text(0.02, 0.9, f"{outside} ratio(s) beyond ×{_RATIO_LIMIT:g} not shown", fontsize=14,
+                         transform=rax.transAxes, va="top")
+        else:
+            rax.text(0.5, 0.5, f"reference entry: {reference}", transform=rax.transAxes, ha="center",
+                     va="center", fontsize=16)
+        rax.set_ylabel(f"core / {reference.split('/')[-1]}", fontsize=18)
+        all_rms = np.concatenate(rmss)
+        positive = all_rms[np.isfinite(all_rms) & (all_rms > 0)]
+        if positive.size and positive.max() / positive.min() > 20:
+            rms_ax.set_yscale("log")
+            rms_ax.set_ylim(positive.min() / 2, positive.max() * 2)
+        else:
+            _bounded_ylim(rms_ax, all_rms, floor=0.0)
+        rms_ax.set_ylabel(f"RMS {label}", fontsize=20)
+        rms_ax.set_xlabel(r"$p_\mathrm{true}$ [GeV]")
+        rms_ax.set_xscale("log")
+        rms_ax.set_xlim(edges[0], edges[-1])
+    return fig
+
+
+def _plot_resolution(data: ReportData, out: Path) -> list[Plot]:
+    fig = resolution_figure(data)
+    if fig is None:
+        return []
     _save(fig, out / "resolution.png")
-    caption = ("Resolution at the first hit vs true momentum: RMS (filled) and Gaussian core σ (open) "
-               "of δp/p, x and tx per fitter; lower panels: ratio to the reference fitter.")
+    reference = data.summary["reference"]
+    caption = (f"Resolution at the first hit vs true momentum per entry: Gaussian core σ of δp/p, x and tx "
+               f"(top, linear), its ratio to the reference entry {reference} (middle), and the RMS, which "
+               "carries the tails (bottom).")
     return [Plot("resolution.png", caption)]
 
 
@@ -171,7 +210,10 @@ def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
             mplhep.histplot(h, ax=ax, yerr=True, histtype="errorbar", color="black", label=f"{name}")
             stats = section["parameters"][par]
             text = [f"RMS = {_fmt(stats['rms'])}"]
-            if stats["width"] is not None and stats["mean"] is not None:
+            if not stats["valid"]:
+                text = ["no Gaussian core" + (f" (KS distance {stats['core_distance']:.3f})"
+                                              if stats.get("core_distance") is not None else "")] + text
+            elif stats["width"] is not None and stats["mean"] is not None:
                 width = h.axes[0].widths[0]
                 # the core fit is normalised to its ±3σ window, which holds n_core pulls
                 scale = stats["n_core"] / (norm.cdf(3) - norm.cdf(-3)) * width
