@@ -2,7 +2,8 @@
 
 Floors, top to bottom: cli → pipeline → report → seeding → fit → simulation → params → physics
 → geometry, io → errors, jit (`pkf/__init__.py` sits at the bottom with errors and jit). A module
-may import from its own subpackage or from a lower floor. Every import statement counts,
+may import from its own subpackage or from a lower floor: not from a higher one, nor from the
+other part of its own floor (geometry ↔ io, errors ↔ jit); anything may import `pkf` itself. Every import statement counts,
 including those deferred inside functions and relative ones (`from . import x`,
 `from ..fit import y`). The graph is built from the source with `ast`, nothing is imported.
 
@@ -161,12 +162,13 @@ def strongly_connected_components(edges: dict[str, dict[str, int]]) -> list[list
 
 
 def upward_edges(modules, edges) -> list[str]:
+    """Imports from a higher floor or from another part of the same floor, as lines to print."""
     bad = []
     for module, targets in edges.items():
         part, floor = floor_of(module)
         for target, line in targets.items():
             target_part, target_floor = floor_of(target)
-            if target_part != part and target_floor > floor:
+            if target_part != part and target_floor >= floor and target_part != "":
                 bad.append(
                     f"{modules[module].relative_to(PACKAGE_ROOT.parent)}:{line}: {module} ({part}, floor {floor})"
                     f" imports {target} ({target_part}, floor {target_floor})"
@@ -191,7 +193,7 @@ def circle_edges(modules, edges) -> list[str]:
 def test_no_import_from_a_higher_floor():
     modules, edges = import_graph()
     bad = upward_edges(modules, edges)
-    assert not bad, "imports from a higher floor (DESIGN §14):\n" + "\n".join(bad)
+    assert not bad, "imports from a higher floor or a sibling part (DESIGN §14):\n" + "\n".join(bad)
 
 
 def test_no_circle_of_modules():
@@ -229,3 +231,10 @@ def test_checker_resolves_relative_imports_and_flags_upward_ones(tmp_path):
     edges["pkf.params.tuning"] = dict(found)
     (bad,) = upward_edges({name: PACKAGE_ROOT / "x.py" for name in modules}, edges)
     assert "pkf.params.tuning (params, floor 3) imports pkf.fit.parametrized (fit, floor 5)" in bad
+
+
+def test_checker_flags_a_sibling_part_of_the_same_floor():
+    edges = {"pkf.io.reader": {"pkf.geometry.detector": 3, "pkf.errors": 2, "pkf": 1},
+             "pkf.geometry.detector": {}, "pkf.errors": {}, "pkf": {}}
+    (bad,) = upward_edges({name: PACKAGE_ROOT / "x.py" for name in edges}, edges)
+    assert "pkf.io.reader (io, floor 1) imports pkf.geometry.detector (geometry, floor 1)" in bad

@@ -12,7 +12,7 @@ from report_helpers import read_summary, write_synthetic_run
 from pkf.io.reader import read_table
 from pkf.io.schemas import PULLS, STATES
 from pkf.pipeline.report import run_report
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 from pkf.report.metrics import CHI2_NDF_CUTS, P_EDGES_MEV
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
