@@ -57,7 +57,7 @@ class ParametrizedExtrapolator(NamedTuple):
     layer_z (L) [mm]; layer_sub (L) subdetector index; sub_first/sub_last (S) first and
     last layer of each subdetector (−1 if absent); within_type/between_type (S) the step
     type inside the subdetector and for leaving it (STEP_*); extrapolation (L, 9) and
-    noise (L, 5) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays.
+    noise (L, 6) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays.
     """
 
     layer_z: np.ndarray
