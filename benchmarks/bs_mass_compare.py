@@ -32,12 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pkf.pipeline.inputs import column, particle_key
+from pkf.io.schemas import particle_key
+from pkf.params.gauss import gaussian_core
+from pkf.pipeline.inputs import column
 from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
+from pkf.pipeline.report import load_truth
 from pkf.pipeline.simulate import SimulationConfig, run_simulation
-from pkf.report.gauss import gaussian_core
 from pkf.report.massfit import KAON_MASS, fit_mass_peak, four_momenta, invariant_mass
-from pkf.report.metrics import MASS_WINDOW_MEV, _load_truth, bs_kaon_state_rows, mass_ratio_on_common_candidates
+from pkf.report.metrics import MASS_WINDOW_MEV, bs_kaon_state_rows, mass_ratio_on_common_candidates
 from pkf.report.runs import load_runs, rows_of
 
 FITTERS = ("parametrized", "reference")
@@ -58,7 +60,7 @@ def analyse(run_dir: Path) -> dict:
     missing = [f for f in FITTERS if f not in run.fitters]
     if missing:
         raise SystemExit(f"{run_dir}: run has no fitter {', '.join(missing)}")
-    truth = _load_truth(run)
+    truth = load_truth(run)
     if truth.status != "ok":
         raise SystemExit(f"{run_dir}: {truth.status}")
     # production truth of every particle, looked up by key

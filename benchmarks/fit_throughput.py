@@ -31,7 +31,7 @@ from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN  # noqa: E402
 from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch  # noqa: E402
 from pkf.geometry import load_geometry  # noqa: E402
 from pkf.params.parameter_set import shipped_parameters  # noqa: E402
-from pkf.report.gauss import gaussian_core  # noqa: E402
+from pkf.params.gauss import gaussian_core  # noqa: E402
 
 P_BINS = (2000.0, 5000.0, 10000.0, 20000.0, 50000.0, 100000.0)
 

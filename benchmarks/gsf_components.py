@@ -37,7 +37,7 @@ from pkf.fit.gx2f import fit_batch_gx2f  # noqa: E402
 from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch  # noqa: E402
 from pkf.geometry import load_geometry  # noqa: E402
 from pkf.params.parameter_set import shipped_parameters  # noqa: E402
-from pkf.report.gauss import gaussian_core  # noqa: E402
+from pkf.params.gauss import gaussian_core  # noqa: E402
 
 COMPONENTS = (4, 8, 12, 16)
 

@@ -17,7 +17,8 @@ import pkf
 from pkf.errors import InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
-from pkf.pipeline.reconstruct import EVENTS_PER_BATCH, PATTERNS
+from pkf.pipeline.config import PATTERNS
+from pkf.pipeline.reconstruct import EVENTS_PER_BATCH
 from pkf.simulation.generators import GENERATORS
 from pkf.simulation.species import SPECIES_NAMES
 

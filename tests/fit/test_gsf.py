@@ -11,8 +11,8 @@ from pkf.fit.gsf import _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cd
 from pkf.fit.reference import reference_extrapolator
 from pkf.fit.tracks import FitOptions
 from pkf.geometry import load_geometry, parse_geometry
-from pkf.report.gauss import gaussian_core
-from pkf.simulation.species import MASS_PION
+from pkf.params.gauss import gaussian_core
+from pkf.physics.constants import MASS_PION
 
 ELECTRONS = {"species": "electron", "particles": 10, "p_min": 2000.0, "p_max": 50000.0, "eta_min": 2.0, "eta_max": 5.0}
 

@@ -5,10 +5,10 @@ import pytest
 from fit_helpers import TruthSample
 
 from pkf.fit.gx2f import MAX_UPDATES, _propagate, _solve, fit_batch_gx2f
-from pkf.fit.linalg import search_sorted
+from pkf.physics.linalg import search_sorted
 from pkf.fit.tracks import FitOptions
 from pkf.geometry import load_geometry
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from scipy import stats
 
 from pkf.fit.kalman import SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN
 from pkf.geometry import load_geometry
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 GUN = dict(particles=10, p_min=1000.0, p_max=50000.0, eta_min=2.0, eta_max=4.0)
 

@@ -6,7 +6,7 @@ from fit_helpers import TruthSample
 
 from pkf.fit.tracks import TrackBatch
 from pkf.geometry import load_geometry
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,9 @@ noise, ≈ 0.35 mrad), which cost the parametrized fitter 5–13% of momentum re
 import numpy as np
 import pytest
 
-from pkf.fit.parametrized import STEP_SCIFI, STEP_UT
 from pkf.geometry import load_geometry
 from pkf.params.parameter_set import shipped_parameters, slot_structure
+from pkf.params.transport import STEP_SCIFI, STEP_UT
 from pkf.params.tuning import _apply_many, build_pairs, pair_slot, robust_linear_fit
 from pkf.pipeline.simulate import SimulationConfig, simulate_batch
 

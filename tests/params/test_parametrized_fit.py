@@ -10,7 +10,7 @@ from pkf.errors import InputError
 from pkf.fit.tracks import FitOptions, fit_batch
 from pkf.geometry import load_geometry
 from pkf.params.parameter_set import ParameterSet, load_parameters, shipped_parameters
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 import sys
 from pathlib import Path

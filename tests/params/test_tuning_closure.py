@@ -13,7 +13,7 @@ from pkf.cli import main
 from pkf.fit.tracks import FitOptions, fit_batch
 from pkf.geometry import load_geometry
 from pkf.params.parameter_set import ParameterSet, shipped_parameters
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fit"))
 from fit_helpers import TruthSample  # noqa: E402

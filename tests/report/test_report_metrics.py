@@ -13,7 +13,7 @@ from pkf.io.reader import read_table
 from pkf.io.schemas import PULLS, STATES
 from pkf.cli import main
 from pkf.pipeline.report import run_report
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 from pkf.report.metrics import CHI2_NDF_CUTS, P_EDGES_MEV
 
 
@@ -235,11 +235,13 @@ def test_resolution_figure_shows_every_core_width(telescope_runs):
     sized to the RMS used to hide them), and the ratio panel is bounded to the ratios."""
     import matplotlib.pyplot as plt
 
+    from pkf.pipeline.report import load_truths
     from pkf.report.metrics import compute_report
     from pkf.report.plots import resolution_figure
     from pkf.report.runs import load_runs
 
-    data = compute_report(load_runs([telescope_runs["parametrized"], telescope_runs["reference"]]))
+    runs = load_runs([telescope_runs["parametrized"], telescope_runs["reference"]])
+    data = compute_report(runs, load_truths(runs))
     fig = resolution_figure(data)
     try:
         core_ax, ratio_ax = fig.axes[0], fig.axes[3]  # δp/p column: core, ratio (3 × 3 grid, row-major)
@@ -256,3 +258,21 @@ def test_resolution_figure_shows_every_core_width(telescope_runs):
         assert rhi - rlo < 2.0 * (max(ratios + [1.0]) - min(ratios + [1.0])) + 0.05
     finally:
         plt.close(fig)
+
+
+def test_pull_validity_needs_a_gaussian_core():
+    """Issue 17: a double-peaked pull distribution gets a fitted 'width' but valid = False
+    (the GSF's q/p on lhcb-like electrons looked like this), a Gaussian one valid = True."""
+    from pkf.report.metrics import pull_summary
+
+    rng = np.random.default_rng(7)
+    gaussian = pull_summary(rng.normal(0.1, 1.05, 5000))
+    assert gaussian["valid"] and gaussian["fit_converged"] and abs(gaussian["width"] - 1.05) < 0.05
+    two_peaks = np.r_[rng.normal(-12, 3, 60), rng.normal(10, 4, 60)]
+    bad = pull_summary(two_peaks)
+    assert bad["width"] is not None and not bad["valid"], bad
+    flat = pull_summary(rng.uniform(-5, 5, 3000))
+    assert not flat["valid"], flat
+    # small Gaussian samples stay valid in ≥ 98 % of trials (the 1 % critical value + allowance)
+    ok = [pull_summary(rng.normal(0, 1, 120))["valid"] for _ in range(50)]
+    assert np.mean(ok) >= 0.98

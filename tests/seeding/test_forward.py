@@ -18,10 +18,11 @@ import numpy as np
 import pytest
 
 from pkf.errors import InputError
-from pkf.fit.parametrized import parametrized_step
 from pkf.geometry import load_geometry
 from pkf.geometry.detector import SUBDETECTORS
 from pkf.params.parameter_set import shipped_parameters
+from pkf.params.transport import parametrized_step
+from pkf.params.ut_to_scifi import localize_ut_to_scifi, ut_to_scifi_extrapolate_localized
 from pkf.seeding.forward import (
     STATUS_INVALID,
     STATUS_NO_SCIFI,
@@ -36,8 +37,6 @@ from pkf.seeding.forward_steps import (
     TRANSPORT_OK,
     new_table_buffers,
     reference_trajectory,
-    table_localize,
-    table_step,
 )
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -271,7 +270,7 @@ def test_reference_trajectory_equals_parametrized_step(geometry, ext):
         q = rng.uniform(-1.0, 1.0) / 3200.0
         s = np.array([rng.normal(0, 5), rng.normal(0, 5), rng.normal(0, 0.08), rng.normal(0, 0.06), q])
         _, s_ut, _, _ = _chain(ext, s, layer_z[a], layer_z[f_layer[n_ut - 1]])
-        table_localize(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
+        localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
         ref_s = np.zeros((f_layer.size, 5))
         ref_f = np.zeros((f_layer.size, 5, 5))
         ref_q = np.zeros((f_layer.size, 5, 5))
@@ -294,13 +293,13 @@ def test_table_continuation_below_p_min(ext, sample, geometry):
     particles better than the linear continuation of the table module."""
     poly, ref = new_table_buffers(ext)
     s = np.array([150.0, -80.0, 0.07, -0.03, 0.0])
-    table_localize(ext.uts_meta, ext.uts_coef, s[0], s[1], poly, ref)
+    localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s[0], s[1], poly, ref)
     eloss = ext.extrapolation[int(np.flatnonzero(geometry.layer_subdetector == 1)[-1]), 0]
     out, jac = np.zeros(5), np.zeros((5, 5))
 
     def f(state):
         o, j = np.zeros(5), np.zeros((5, 5))
-        st = table_step(ext.uts_meta, poly, ref, eloss, state, o, j, True)
+        st = ut_to_scifi_extrapolate_localized(ext.uts_meta, poly, ref, eloss, state, o, j, True)
         return st, o, j
 
     # continuity at the edge (w = ±1 at the energy-loss corrected q/p)
@@ -346,10 +345,10 @@ def test_table_continuation_below_p_min(ext, sample, geometry):
         state = np.array([*velo["state"][t], p["charge"][idx[t]] / mom[t]])
         a = int(np.argmin(np.abs(geometry.layer_z - velo["z"][t])))
         _, s_ut, _, _ = _chain(ext, state, geometry.layer_z[a], geometry.layer_z[last_ut])
-        table_localize(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
+        localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
         for quad in (True, False):
             o, j = np.zeros(5), np.zeros((5, 5))
-            table_step(ext.uts_meta, poly, ref, eloss, s_ut, o, j, quad)
+            ut_to_scifi_extrapolate_localized(ext.uts_meta, poly, ref, eloss, s_ut, o, j, quad)
             errors[quad].append(abs(o[0] - t1_x[k]))
     assert len(errors[True]) > 20
     assert np.median(errors[True]) < 0.8 * np.median(errors[False])

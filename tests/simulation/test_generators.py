@@ -11,7 +11,7 @@ from pkf.simulation.generators import (
     generate_gun,
     generate_minbias,
 )
-from pkf.simulation.species import MASS_BS, MASS_PHI
+from pkf.physics.constants import MASS_BS, MASS_PHI
 
 
 def _invariant_mass(ev, rows):

@@ -13,11 +13,11 @@ import numba as nb
 import numpy as np
 
 from pkf.fit.extrapolator import extrapolate
-from pkf.fit.linalg import sandwich
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.geometry.detector import Geometry
 from pkf.geometry.field import uniform_field
-from pkf.simulation.species import MASS_PION
+from pkf.physics.constants import MASS_PION
+from pkf.physics.linalg import sandwich
 
 #: RK4 step of the straight line: any length is exact in zero field.
 STRAIGHT_LINE_STEP = 1e6

@@ -24,7 +24,10 @@ from __future__ import annotations
 import numba as nb
 from numba.extending import overload
 
-# Track status codes (the `status` column of the chi2 table says them in words).
+from pkf.params.transport import ParametrizedExtrapolator, parametrized_step
+
+# Track status codes (the `status` column of the chi2 table says them in words). The codes
+# an extrapolation returns have the values of `pkf.params.transport.TRANSPORT_*`.
 STATUS_OK = 0
 STATUS_TOO_FEW_HITS = 1
 STATUS_EXTRAPOLATION_FAILED = 2
@@ -68,3 +71,8 @@ def _extrapolate_overload(ext, state_in, z_from, z_to, state_out, jac_out, noise
         return step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, work)
 
     return implementation
+
+
+# The parametrized extrapolator lives in `pkf.params.transport` (a lower floor, shared with the
+# forward search); its step is registered here, so every user of the Kalman core has it.
+register_extrapolator(ParametrizedExtrapolator, parametrized_step)

@@ -131,7 +131,7 @@ from pkf.fit.extrapolator import (
     STATUS_TOO_FEW_HITS,
 )
 from pkf.fit.kalman import count_ndf, find_outlier, scalar_update
-from pkf.fit.linalg import (
+from pkf.physics.linalg import (
     copy5,
     copy55,
     invert_spd,
@@ -154,7 +154,7 @@ from pkf.params.bethe_heitler import (
     load_bethe_heitler_mixture,
 )
 from pkf.physics.transport import rk4_propagate_jacobian, rk4_propagate_scalar
-from pkf.simulation.species import MASS_ELECTRON
+from pkf.physics.constants import MASS_ELECTRON
 
 OUTPUT_CORE = 3
 OUTPUT_MODE = 0

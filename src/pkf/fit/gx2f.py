@@ -73,7 +73,7 @@ from pkf.fit.extrapolator import (
     STATUS_TOO_FEW_HITS,
 )
 from pkf.fit.kalman import add_node_information, count_ndf, find_outlier, transport_information
-from pkf.fit.linalg import (
+from pkf.physics.linalg import (
     copy5,
     copy55,
     invert_spd,

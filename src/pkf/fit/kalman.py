@@ -55,7 +55,7 @@ from pkf.fit.extrapolator import (
     STATUS_TOO_FEW_HITS,
     extrapolate,
 )
-from pkf.fit.linalg import copy5, copy55, invert_spd, matmul55, sandwich, symmetrise
+from pkf.physics.linalg import copy5, copy55, invert_spd, matmul55, sandwich, symmetrise
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1

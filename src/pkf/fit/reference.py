@@ -17,7 +17,7 @@ import numba as nb
 import numpy as np
 
 from pkf.fit.extrapolator import STATUS_EXTRAPOLATION_FAILED, STATUS_OK, register_extrapolator
-from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
+from pkf.physics.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
 from pkf.geometry.acceptance import in_active_area
 from pkf.geometry.detector import Geometry
 from pkf.physics.materials import (
@@ -28,7 +28,7 @@ from pkf.physics.materials import (
     highland_theta0,
 )
 from pkf.physics.transport import rk4_propagate_jacobian
-from pkf.simulation.species import MASS_PION
+from pkf.physics.constants import MASS_PION
 
 #: Longest RK4 step [mm] of the reference extrapolation.
 REFERENCE_MAX_STEP = 100.0

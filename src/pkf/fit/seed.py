@@ -25,7 +25,7 @@ import math
 import numba as nb
 import numpy as np
 
-from pkf.fit.linalg import invert_spd
+from pkf.physics.linalg import invert_spd
 from pkf.geometry.field import field_at
 from pkf.physics.transport import C_LIGHT
 

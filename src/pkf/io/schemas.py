@@ -354,3 +354,12 @@ def table_from_columns(schema: pa.Schema, columns: Mapping[str, object]) -> pa.T
             raise ValueError(f"table_from_columns: column {field.name!r} has nulls but is not nullable")
         arrays.append(arr)
     return pa.Table.from_arrays(arrays, schema=schema)
+
+
+#: particle keys: event_id·PARTICLE_KEY_BASE + particle_id (`particle_key`)
+PARTICLE_KEY_BASE = 1 << 24
+
+
+def particle_key(event_id, particle_id):
+    """A particle id unique across events (0 stays 0 for noise); key % 2²⁴ = particle_id."""
+    return np.where(particle_id > 0, event_id * PARTICLE_KEY_BASE + particle_id, 0)

@@ -53,7 +53,7 @@ and a noise floor p̃4 (DESIGN §15: Allen's failure mode for high-momentum, lar
 tracks, where the ∝ 1/p noise vanishes below the parametrization error). p̃5 [MeV] is
 the spread of the energy lost before a step (straggling): it enters as q/p noise
 (p̃5·qop²)² at the start of the step, propagated through the step's Jacobian (see
-`pkf.fit.parametrized`) — the state carries the production momentum, so the
+`pkf.params.transport`) — the state carries the production momentum, so the
 fluctuation of the energy lost upstream of the magnet is a real uncertainty there.
 """
 

@@ -2,7 +2,7 @@
 
 A parameter file (``pkf tune`` writes it) holds, for one geometry (checked by its
 content hash), the extrapolation and noise parameters of every step slot (slot i: the
-step leaving layer i, see `pkf.fit.parametrized`), the UT→SciFi table if the geometry
+step leaving layer i, see `pkf.params.transport`), the UT→SciFi table if the geometry
 has such a step, and metadata: geometry and field-map hashes, the tuning sample, the
 date, the pkf version and every fit's status.
 """
@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from pkf.errors import InputError
-from pkf.fit.parametrized import STEP_CODES, STEP_NONE, ParametrizedExtrapolator
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json
 from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS
+from pkf.params.transport import STEP_CODES, STEP_NONE, ParametrizedExtrapolator
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable
 
 FORMAT = "pkf-params/1"

@@ -30,14 +30,6 @@ import numba as nb
 import numpy as np
 from iminuit import Minuit
 
-from pkf.fit.parametrized import (
-    STEP_NONE,
-    STEP_SCIFI,
-    STEP_UT,
-    STEP_UT_TO_SCIFI,
-    STEP_VELO,
-    STEP_VELO_TO_UT,
-)
 from pkf.params.formulas import (
     LAYER_TX_MONOMIALS,
     LAYER_TX_OFFSET,
@@ -49,8 +41,16 @@ from pkf.params.formulas import (
     velo_step,
     velo_to_ut_step,
 )
+from pkf.params.gauss import gaussian_core
 from pkf.params.parameter_set import SlotStructure
-from pkf.report.gauss import gaussian_core
+from pkf.params.transport import (
+    STEP_NONE,
+    STEP_SCIFI,
+    STEP_UT,
+    STEP_UT_TO_SCIFI,
+    STEP_VELO,
+    STEP_VELO_TO_UT,
+)
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate, ut_to_scifi_extrapolate_many
 from pkf.physics.transport import rk4_propagate_scalar
 

@@ -19,8 +19,10 @@ import math
 import numba as nb
 import numpy as np
 
+from pkf.physics.constants import MASS_ELECTRON
+
 # --- constants (PDG RPP 2024, "Passage of particles through matter", Table 34.1) -----
-ELECTRON_MASS = 0.51099895  # MeV
+ELECTRON_MASS = MASS_ELECTRON  # MeV
 BETHE_K = 0.307075  # 4π N_A r_e² m_e c², MeV cm²/mol
 HIGHLAND_SCALE = 13.6  # MeV
 HIGHLAND_LOG = 0.038

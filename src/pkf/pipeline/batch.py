@@ -22,16 +22,18 @@ from pkf.fit.fitters import get_fitter
 from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.reader import Dataset
-from pkf.io.schemas import CANDIDATES, CHI2, PULLS, STATES, pack_covariance, table_from_columns
-from pkf.params.parameter_set import load_parameters
-from pkf.pipeline.inputs import (
-    STATE_NAMES,
-    _PARTICLE_KEY_BASE,
-    align_mc,
-    column,
+from pkf.io.schemas import (
+    CANDIDATES,
+    CHI2,
+    PARTICLE_KEY_BASE,
+    PULLS,
+    STATES,
+    pack_covariance,
     particle_key,
-    production_truth,
+    table_from_columns,
 )
+from pkf.params.parameter_set import load_parameters
+from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
 from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
 from pkf.pipeline.triplet_pattern import triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
@@ -210,7 +212,7 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
     if has_mc:
         hit_key = particle_key(ev, hit_particle)
         mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
-        mc_particle = np.where(mc_id >= 0, mc_id % _PARTICLE_KEY_BASE, -1)
+        mc_particle = np.where(mc_id >= 0, mc_id % PARTICLE_KEY_BASE, -1)
         scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
                                  == SUBDETECTORS.index("scifi"), minlength=n_tracks)
         is_long = scifi_hits > 0

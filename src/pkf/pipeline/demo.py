@@ -20,7 +20,7 @@ from pkf.io.schemas import PULLS
 from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
 from pkf.pipeline.report import run_report
 from pkf.pipeline.simulate import SimulationConfig, run_simulation
-from pkf.report.gauss import gaussian_core
+from pkf.params.gauss import gaussian_core
 
 DEMO_FITTERS = ("parametrized", "reference")
 

@@ -81,7 +81,7 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None):
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
     from pkf.pipeline.batch import context_for, reconstruct_batch
-    from pkf.pipeline.reconstruct import ReconstructionConfig
+    from pkf.pipeline.config import ReconstructionConfig
 
     config = ReconstructionConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in task.config.items()})
     ctx = context_for(_geometry(task.dataset), config)

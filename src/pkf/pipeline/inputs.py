@@ -11,6 +11,7 @@ import pyarrow as pa
 from pkf.errors import InputError
 from pkf.geometry.detector import Geometry, load_geometry, parse_geometry
 from pkf.io.reader import Dataset, open_dataset, read_meta
+from pkf.io.schemas import particle_key
 
 STATE_NAMES = ("x", "y", "tx", "ty", "qop")
 
@@ -56,14 +57,6 @@ def files_content_hash(files, block: int = 1 << 20) -> str:
 
 def column(table: pa.Table, name: str, dtype=np.float64) -> np.ndarray:
     return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)
-
-
-_PARTICLE_KEY_BASE = 1 << 24
-
-
-def particle_key(event_id, particle_id):
-    """A particle id unique across events (0 stays 0 for noise); key % 2²⁴ = particle_id."""
-    return np.where(particle_id > 0, event_id * _PARTICLE_KEY_BASE + particle_id, 0)
 
 
 def align_mc(dataset, event_id: np.ndarray):

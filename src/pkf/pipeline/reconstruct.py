@@ -14,7 +14,7 @@ and so on for ``candidates``, ``states`` and ``pulls`` (when MC is present).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +22,10 @@ from tqdm import tqdm
 
 import pkf
 from pkf.errors import InputError
-from pkf.fit.fitters import Fitter, get_fitter
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
 from pkf.io.stream import file_sha256
 from pkf.pipeline.batch import metrics_from_counts
+from pkf.pipeline.config import ReconstructionConfig
 from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
 from pkf.pipeline.plan import DatasetPlan, plan_dataset, with_keys
 from pkf.pipeline.resume import RunStaging, complete_run
@@ -33,35 +33,6 @@ from pkf.pipeline.resume import RunStaging, complete_run
 #: Default events per partition: bounds each worker's memory (~8000 hits per event at ν = 7.6,
 #: about 0.6 GiB per worker at 50 events).
 EVENTS_PER_BATCH = 50
-PATTERNS = ("triplet", "truth")
-
-
-@dataclass(frozen=True)
-class ReconstructionConfig:
-    """Every option of `pkf reconstruct` that decides its output (DESIGN §1.1)."""
-
-    fitters: tuple[str, ...] = ("parametrized",)
-    pattern: str = "triplet"
-    params: str | None = None
-    outlier_chi2: float = 9.0
-    max_outliers: int = 2
-    iterations: int | None = None  # None: each fitter's own (Fitter.iterations)
-    max_components: int = 12
-
-    def validate(self) -> list[Fitter]:
-        if self.pattern not in PATTERNS:
-            raise InputError(f"--pattern: unknown pattern {self.pattern!r} (one of {', '.join(PATTERNS)})")
-        if not self.outlier_chi2 > 0:
-            raise InputError(f"--outlier-chi2: must be > 0, not {self.outlier_chi2}")
-        if self.max_outliers < 0:
-            raise InputError(f"--max-outliers: must be >= 0, not {self.max_outliers}")
-        if self.iterations is not None and self.iterations < 1:
-            raise InputError(f"--iterations: must be >= 1, not {self.iterations}")
-        if len(set(self.fitters)) != len(self.fitters):
-            raise InputError("--fitter: a fitter is given twice")
-        return [get_fitter(name) for name in self.fitters]
-
-
 def _check_config_against(plan: DatasetPlan, config: ReconstructionConfig) -> None:
     """Problems of the configuration for this dataset, before any work (DESIGN §13)."""
     if config.pattern == "truth" and not plan.has_mc:

@@ -10,12 +10,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir, staged_output_dir
-from pkf.report.html import render_html
-from pkf.report.metrics import compute_report
-from pkf.report.runs import load_runs, parse_run_spec
+import numpy as np
 
-__all__ = ["run_report", "REPORT_FILES"]
+from pkf.errors import InputError
+from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir, staged_output_dir
+from pkf.io.schemas import particle_key
+from pkf.pipeline.inputs import align_mc, content_hash, load_dataset
+from pkf.pipeline.matching import reconstructible_particles
+from pkf.report.html import render_html
+from pkf.report.metrics import DatasetTruth, compute_report, lookup_sorted
+from pkf.report.runs import RunInput, column, load_runs, parse_run_spec
+
+__all__ = ["run_report", "load_truth", "load_truths", "REPORT_FILES"]
 
 #: Files every report holds (plus the PNG plots that have data).
 REPORT_FILES = ("index.html", "summary.json")
@@ -48,7 +54,7 @@ def run_report(run_specs: list, out: Path, overwrite: bool = False, reference: s
     runs = load_runs(run_specs)
     inputs = [*run_dirs, *(run.dataset_path for run in runs)]
     check_output_apart(out, inputs)
-    data = compute_report(runs, reference)
+    data = compute_report(runs, load_truths(runs), reference)
     for line in data.summary["warnings"]:
         if echo:
             echo(line)
@@ -60,3 +66,81 @@ def run_report(run_specs: list, out: Path, overwrite: bool = False, reference: s
         (staging / "index.html").write_text(render_html(data.summary, plots), encoding="utf-8")
         atomic_write_json(data.summary, staging / "summary.json")
     return data.summary
+
+
+def load_truth(run: RunInput) -> DatasetTruth:
+    """Read the run's dataset (particles, mc_hits, hits, geometry) for efficiency and the B_s mass.
+
+    A missing dataset, one without MC truth or one that changed since the run gives a
+    status saying so (the sections are then marked unavailable); a present but
+    malformed dataset raises InputError.
+    """
+    path = run.dataset_path
+    if path is None:
+        return DatasetTruth("run.json names no dataset (input.path)")
+    if not path.is_dir():
+        return DatasetTruth(f"dataset {path} not found (moved or deleted since the run)")
+    if not (path / "meta.json").is_file():
+        return DatasetTruth(f"{path} is not a dataset (no meta.json)")
+    geometry, dataset = load_dataset(path)
+    if not dataset.has_mc:
+        return DatasetTruth(f"dataset {path} has no MC truth (particles, mc_hits)")
+    recorded = (run.info.get("input") or {}).get("content_hash")
+    if recorded and recorded != content_hash(dataset):
+        return DatasetTruth(f"dataset {path} changed since the run (content hash differs from run.json)")
+
+    hits = dataset.hits
+    event_id = column(hits, "event_id", np.int64)
+    particle, _ = align_mc(dataset, event_id)
+    key = particle_key(event_id, particle)
+    reco = np.sort(reconstructible_particles(geometry, key, column(hits, "layer", np.int64)))
+
+    parts = dataset.particles
+    p_event = column(parts, "event_id", np.int64)
+    p_id = column(parts, "particle_id", np.int64)
+    p_key = particle_key(p_event, p_id)
+    order = np.argsort(p_key)
+    p_key_sorted = p_key[order]
+    px, py, pz = (column(parts, c)[order] for c in ("px", "py", "pz"))
+    pos, _ = lookup_sorted(p_key_sorted, reco)
+    pt = np.hypot(px, py)
+    p = np.sqrt(pt**2 + pz**2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta = -np.log(np.tan(0.5 * np.arctan2(pt, pz)))
+
+    # B_s → φφ, φ → K⁺K⁻: group signal kaons by their grand-parent
+    pdg = column(parts, "pdg", np.int64)[order]
+    parent = column(parts, "parent_id", np.int64)[order]
+    signal = column(parts, "from_signal", bool)[order]
+    ev_sorted = p_event[order]
+    parent_key = particle_key(ev_sorted, parent)
+    ppos, pfound = lookup_sorted(p_key_sorted, parent_key)
+    parent_pdg = np.where(pfound, pdg[ppos], 0)
+    grand_key = np.where(pfound, particle_key(ev_sorted, parent[ppos]), 0)
+    gpos, gfound = lookup_sorted(p_key_sorted, grand_key)
+    grand_pdg = np.where(pfound & gfound, pdg[gpos], 0)
+    is_kaon = signal & (np.abs(pdg) == 321) & (parent_pdg == 333) & (np.abs(grand_pdg) == 531)
+    bs = signal & (np.abs(pdg) == 531)
+    kaons_of = {}
+    for k_key, g_key in zip(p_key_sorted[is_kaon], grand_key[is_kaon]):
+        kaons_of.setdefault(int(g_key), []).append(int(k_key))
+    quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
+    kaon_keys = np.array(quads, dtype=np.int64).reshape(-1, 4)
+    return DatasetTruth("ok", int(np.unique(event_id).size), reco, p[pos], eta[pos], kaon_keys, int(bs.sum()))
+
+
+def load_truths(runs: list[RunInput]) -> list[DatasetTruth | None]:
+    """`load_truth` of each run with MC truth (None for the others), each dataset read once."""
+    by_path: dict[Path, DatasetTruth] = {}
+    truths = []
+    for run in runs:
+        if not run.has_mc:
+            truths.append(None)
+        elif run.dataset_path is None:
+            truths.append(load_truth(run))
+        else:
+            key = run.dataset_path.resolve()
+            if key not in by_path:
+                by_path[key] = load_truth(run)
+            truths.append(by_path[key])
+    return truths

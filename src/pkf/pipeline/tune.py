@@ -10,13 +10,14 @@ import numpy as np
 
 import pkf
 from pkf.errors import InputError
-from pkf.io.atomic import check_output_apart
-from pkf.fit.parametrized import STEP_UT_TO_SCIFI
 from pkf.geometry.detector import Geometry
+from pkf.io.atomic import check_output_apart
+from pkf.io.schemas import particle_key
 from pkf.params.parameter_set import ParameterSet, slot_structure
+from pkf.params.transport import STEP_UT_TO_SCIFI
 from pkf.params.tuning import build_pairs, tune_slots
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
-from pkf.pipeline.inputs import align_mc, column, load_dataset, particle_key, production_truth
+from pkf.pipeline.inputs import align_mc, column, load_dataset, production_truth
 
 UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
 #: (x/z, y/z) grid points of the UT→SciFi table. The paper uses 50×50; 50×100 halves the

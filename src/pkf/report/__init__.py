@@ -4,10 +4,12 @@ Modules:
 
 - :mod:`pkf.report.runs` — read and validate run directories, merge fitters by name.
 - :mod:`pkf.report.metrics` — every number of the report (summary.json; keys documented there).
-- :mod:`pkf.report.gauss` — Gaussian core of a distribution (iterative ±3σ unbinned fits).
 - :mod:`pkf.report.massfit` — four-kaon invariant mass and the Gaussian + linear mass fit.
 - :mod:`pkf.report.plots` — PNG plots (matplotlib Agg, mplhep LHCb style; imports matplotlib).
 - :mod:`pkf.report.html` — the self-contained index.html.
+
+The Gaussian core of a distribution (iterative ±3σ unbinned fits) is :mod:`pkf.params.gauss`:
+the tuning uses it too, so it lives on that lower floor (DESIGN §14).
 
 The stage that writes a report directory is :func:`pkf.pipeline.report.run_report`.
 """

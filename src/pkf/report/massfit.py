@@ -18,6 +18,8 @@ from iminuit import Minuit
 from iminuit.cost import ExtendedUnbinnedNLL
 from scipy.stats import norm
 
+from pkf.physics.constants import MASS_BS, MASS_KAON
+
 __all__ = [
     "KAON_MASS",
     "BS_MASS",
@@ -28,9 +30,9 @@ __all__ = [
     "MIN_CANDIDATES",
 ]
 
-#: PDG masses [MeV].
-KAON_MASS = 493.677
-BS_MASS = 5366.92
+#: PDG masses [MeV] (`pkf.physics.constants`).
+KAON_MASS = MASS_KAON
+BS_MASS = MASS_BS
 #: Fewer candidates in the window than this: no fit (the numbers would mean nothing).
 MIN_CANDIDATES = 10
 

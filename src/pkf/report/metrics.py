@@ -13,7 +13,7 @@ Conventions
   Pulls are also given per track type (``pulls.by_type``). Each entry uses its own tracks.
 - ``rms`` is the root mean square of the values about zero, ``sqrt(mean(v²))``
   (paper Fig. 1: "root mean square of the residual distribution"); ``core_*`` /
-  ``mean``, ``width`` come from :func:`pkf.report.gauss.gaussian_core` (iterative
+  ``mean``, ``width`` come from :func:`pkf.params.gauss.gaussian_core` (iterative
   ±3σ truncated-Gaussian unbinned fits, 3 passes). Bins with fewer than 10 values
   have no core fit (``null``).
 - δp/p = (p_fit − p_true)/p_true with p_fit = 1/|qop| of the fitted first-hit state
@@ -125,7 +125,8 @@ from scipy.stats import beta
 
 import pkf
 from pkf.errors import InputError
-from pkf.report.gauss import gaussian_core
+from pkf.io.schemas import particle_key
+from pkf.params.gauss import gaussian_core
 from pkf.report.massfit import (
     BS_MASS,
     KAON_MASS,
@@ -234,7 +235,7 @@ def _track_key(table: pa.Table) -> np.ndarray:
     return column(table, "event_id", np.int64) * _KEY + column(table, "track_id", np.int64)
 
 
-def _lookup(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lookup_sorted(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Index of each key in the sorted key array, and whether it was found."""
     if sorted_keys.size == 0:
         return np.zeros(keys.size, dtype=np.int64), np.zeros(keys.size, dtype=bool)
@@ -265,7 +266,7 @@ def _types_of(rows: pa.Table, chi2: pa.Table, types: np.ndarray) -> np.ndarray:
     """Track type of each row of ``rows`` (a pulls or states table of one fitter), via (event, track)."""
     keys = _track_key(chi2)
     order = np.argsort(keys, kind="stable")
-    pos, found = _lookup(keys[order], _track_key(rows))
+    pos, found = lookup_sorted(keys[order], _track_key(rows))
     return np.where(found, types[order][pos], "unknown")
 
 
@@ -299,7 +300,7 @@ def delta_p_over_p(pulls: pa.Table, states: pa.Table) -> np.ndarray:
             st = rows_of(states, fitter, location)
             skey = _track_key(st)
             order = np.argsort(skey, kind="stable")
-            pos, found = _lookup(skey[order], _track_key(pulls.filter(pa.array(mask))))
+            pos, found = lookup_sorted(skey[order], _track_key(pulls.filter(pa.array(mask))))
             qop = column(st, "qop")[order][pos]
             p_true = column(pulls, "p_true")[mask]
             out[np.flatnonzero(mask)] = np.where(found, 1.0 / (p_true * np.abs(qop)) - 1.0, np.nan)
@@ -460,8 +461,8 @@ def efficiency_in_bins(values: np.ndarray, found: np.ndarray, edges: np.ndarray)
 
 
 @dataclass
-class _DatasetTruth:
-    """MC truth of one dataset that the report needs."""
+class DatasetTruth:
+    """MC truth of one dataset that the report needs (`pkf.pipeline.report.load_truth` reads it)."""
 
     status: str  # "ok" or why not available
     n_events: int = 0
@@ -472,73 +473,7 @@ class _DatasetTruth:
     n_bs: int = 0
 
 
-def _load_truth(run: RunInput) -> _DatasetTruth:
-    """Read the run's dataset (particles, mc_hits, hits, geometry) for efficiency and the B_s mass.
-
-    A missing dataset, one without MC truth or one that changed since the run gives a
-    status saying so (the sections are then marked unavailable); a present but
-    malformed dataset raises InputError.
-    """
-    from pkf.pipeline.inputs import align_mc, content_hash, load_dataset, particle_key
-    from pkf.pipeline.matching import reconstructible_particles
-
-    path = run.dataset_path
-    if path is None:
-        return _DatasetTruth("run.json names no dataset (input.path)")
-    if not path.is_dir():
-        return _DatasetTruth(f"dataset {path} not found (moved or deleted since the run)")
-    if not (path / "meta.json").is_file():
-        return _DatasetTruth(f"{path} is not a dataset (no meta.json)")
-    geometry, dataset = load_dataset(path)
-    if not dataset.has_mc:
-        return _DatasetTruth(f"dataset {path} has no MC truth (particles, mc_hits)")
-    recorded = (run.info.get("input") or {}).get("content_hash")
-    if recorded and recorded != content_hash(dataset):
-        return _DatasetTruth(f"dataset {path} changed since the run (content hash differs from run.json)")
-
-    hits = dataset.hits
-    event_id = column(hits, "event_id", np.int64)
-    particle, _ = align_mc(dataset, event_id)
-    key = particle_key(event_id, particle)
-    reco = np.sort(reconstructible_particles(geometry, key, column(hits, "layer", np.int64)))
-
-    parts = dataset.particles
-    p_event = column(parts, "event_id", np.int64)
-    p_id = column(parts, "particle_id", np.int64)
-    p_key = particle_key(p_event, p_id)
-    order = np.argsort(p_key)
-    p_key_sorted = p_key[order]
-    px, py, pz = (column(parts, c)[order] for c in ("px", "py", "pz"))
-    pos, _ = _lookup(p_key_sorted, reco)
-    pt = np.hypot(px, py)
-    p = np.sqrt(pt**2 + pz**2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        eta = -np.log(np.tan(0.5 * np.arctan2(pt, pz)))
-
-    # B_s → φφ, φ → K⁺K⁻: group signal kaons by their grand-parent
-    pdg = column(parts, "pdg", np.int64)[order]
-    parent = column(parts, "parent_id", np.int64)[order]
-    signal = column(parts, "from_signal", bool)[order]
-    ev_sorted = p_event[order]
-    parent_key = particle_key(ev_sorted, parent)
-    ppos, pfound = _lookup(p_key_sorted, parent_key)
-    parent_pdg = np.where(pfound, pdg[ppos], 0)
-    grand_key = np.where(pfound, particle_key(ev_sorted, parent[ppos]), 0)
-    gpos, gfound = _lookup(p_key_sorted, grand_key)
-    grand_pdg = np.where(pfound & gfound, pdg[gpos], 0)
-    is_kaon = signal & (np.abs(pdg) == 321) & (parent_pdg == 333) & (np.abs(grand_pdg) == 531)
-    bs = signal & (np.abs(pdg) == 531)
-    kaons_of = {}
-    for k_key, g_key in zip(p_key_sorted[is_kaon], grand_key[is_kaon]):
-        kaons_of.setdefault(int(g_key), []).append(int(k_key))
-    quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
-    kaon_keys = np.array(quads, dtype=np.int64).reshape(-1, 4)
-    return _DatasetTruth("ok", int(np.unique(event_id).size), reco, p[pos], eta[pos], kaon_keys, int(bs.sum()))
-
-
 def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
-    from pkf.pipeline.inputs import particle_key
-
     mc = column(chi2, "mc_particle_id", np.int64)
     sel = mc > 0
     if ok_only:
@@ -548,8 +483,6 @@ def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
 
 def _rates(chi2: pa.Table) -> tuple[float | None, float | None]:
     """Ghost rate and clone rate of the tracks of a chi2 table (DESIGN §10)."""
-    from pkf.pipeline.inputs import particle_key
-
     n = chi2.num_rows
     if n == 0:
         return None, None
@@ -560,7 +493,7 @@ def _rates(chi2: pa.Table) -> tuple[float | None, float | None]:
     return _f(ghost.mean()), _f(clone)
 
 
-def _efficiency_section(truth: _DatasetTruth, chi2_ok: pa.Table, has_mc: bool) -> dict:
+def _efficiency_section(truth: DatasetTruth, chi2_ok: pa.Table, has_mc: bool) -> dict:
     if not has_mc:
         return _section(False, "no MC truth in this run")
     if truth.status != "ok":
@@ -586,13 +519,13 @@ def _efficiency_section(truth: _DatasetTruth, chi2_ok: pa.Table, has_mc: bool) -
 # ----------------------------------------------------------------------------- B_s mass
 
 
-def long_decays(truth: _DatasetTruth) -> np.ndarray:
+def long_decays(truth: DatasetTruth) -> np.ndarray:
     """Per signal decay (row of ``truth.kaon_keys``): are its four kaons long reconstructible
     particles (DESIGN §10: ≥ 3 VELO hits, an x and a stereo hit in every SciFi station)?"""
     return np.isin(truth.kaon_keys, truth.reco_key).all(axis=1)
 
 
-def bs_kaon_state_rows(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table,
+def bs_kaon_state_rows(truth: DatasetTruth, chi2_ok: pa.Table, states: pa.Table,
                        long_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Rows of ``states`` of the four kaons of each signal decay whose four kaons have a
     fitted, matched track: (decay index into ``truth.kaon_keys`` (n,), rows (n, 4) in the
@@ -600,8 +533,6 @@ def bs_kaon_state_rows(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table
     then the lowest track key, is taken. With ``long_only`` only decays whose four kaons are
     long reconstructible particles (`long_decays`; paper §5: "only tracks with
     measurements in each of the subdetectors are considered")."""
-    from pkf.pipeline.inputs import particle_key
-
     none = (np.zeros(0, dtype=np.int64), np.zeros((0, 4), dtype=np.int64))
     if truth.kaon_keys.shape[0] == 0:
         return none
@@ -619,11 +550,11 @@ def bs_kaon_state_rows(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table
     pkey, tkey = pkey[first], tkey[first]
 
     kaons = truth.kaon_keys.reshape(-1)
-    kpos, kfound = _lookup(pkey, kaons)
+    kpos, kfound = lookup_sorted(pkey, kaons)
     track = tkey[kpos]
     skey = _track_key(states)
     sorder = np.argsort(skey, kind="stable")
-    spos, sfound = _lookup(skey[sorder], track)
+    spos, sfound = lookup_sorted(skey[sorder], track)
     have = (kfound & sfound).reshape(-1, 4).all(axis=1)
     if long_only:
         have &= long_decays(truth)
@@ -632,7 +563,7 @@ def bs_kaon_state_rows(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table
     return np.flatnonzero(have), sorder[spos].reshape(-1, 4)[have]
 
 
-def _bs_masses(truth: _DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+def _bs_masses(truth: DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> tuple[np.ndarray, np.ndarray]:
     """Four-kaon masses [MeV] of the signal decays whose four kaons have a fitted track, and
     the index of each decay in ``truth.kaon_keys`` (the same decay in every fitter's list)."""
     decays, rows = bs_kaon_state_rows(truth, chi2_ok, states)
@@ -717,7 +648,7 @@ def _timing_section(run: RunInput, name: str) -> dict:
 # ----------------------------------------------------------------------------- main entry
 
 
-def _fitter_report(run: RunInput, run_index: int, name: str, truth: _DatasetTruth) -> tuple[dict, FitterArrays]:
+def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth) -> tuple[dict, FitterArrays]:
     arrays = FitterArrays()
     chi2 = rows_of(run.chi2, name)
     ok_mask = pc.equal(chi2.column("status"), "ok")
@@ -805,7 +736,7 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: _DatasetTrut
     return report, arrays
 
 
-def _run_summary(run: RunInput, truth: _DatasetTruth | None) -> dict:
+def _run_summary(run: RunInput, truth: DatasetTruth | None) -> dict:
     config = run.info.get("config") or {}
     counts = run.info.get("counts") or {}
     timing = {k: v for k, v in (run.info.get("timing") or {}).items() if k != "fit"}
@@ -904,9 +835,12 @@ def _compare_with_reference(entries: dict[str, dict], arrays: dict[str, FitterAr
         ref_timing["same_run_as_reference"] = True
 
 
-def compute_report(runs: list[RunInput], reference: str | None = None) -> ReportData:
+def compute_report(runs: list[RunInput], truths: list[DatasetTruth | None],
+                   reference: str | None = None) -> ReportData:
     """All report numbers for the entries (label, fitter) of ``runs`` (validated, labels distinct).
 
+    truths[i]: the MC truth of the dataset of runs[i] (`pkf.pipeline.report.load_truths`
+    reads it), None for a run without MC truth.
     reference: ``LABEL/FITTER`` or ``LABEL`` of the entry to compare with (:func:`choose_reference`).
 
     Raises:
@@ -916,7 +850,6 @@ def compute_report(runs: list[RunInput], reference: str | None = None) -> Report
     if len(set(labels)) != len(labels):  # load_runs already refuses this
         raise InputError("report: two runs have the same label")
     reference = choose_reference(runs, reference)
-    truths: dict[Path, _DatasetTruth] = {}
     entries: dict[str, dict] = {}
     arrays: dict[str, FitterArrays] = {}
     run_summaries = []
@@ -926,13 +859,11 @@ def compute_report(runs: list[RunInput], reference: str | None = None) -> Report
         key = None
         if run.has_mc:
             key = run.dataset_path.resolve() if run.dataset_path else Path(f"<none {index}>")
-            if key not in truths:
-                truths[key] = _load_truth(run)
-            truth = truths[key]
+            truth = truths[index]
         run_summaries.append(_run_summary(run, truth))
         for name in run.fitters:
             entry = run.entry(name)
-            entries[entry], arrays[entry] = _fitter_report(run, index, name, truth or _DatasetTruth("no MC truth"))
+            entries[entry], arrays[entry] = _fitter_report(run, index, name, truth or DatasetTruth("no MC truth"))
             dataset_of[entry] = key if truth is not None else None
     _compare_with_reference(entries, arrays, reference, dataset_of)
 

@@ -114,16 +114,15 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pkf.errors import InputError
-from pkf.fit.parametrized import STEP_SCIFI, STEP_UT, STEP_UT_TO_SCIFI, STEP_VELO_TO_UT
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.jit import NO_REFCOUNT
-from pkf.params.ut_to_scifi import META_NX, META_NY, META_P_MIN, META_SIZE
+from pkf.params.transport import STEP_SCIFI, STEP_UT, STEP_UT_TO_SCIFI, STEP_VELO_TO_UT
+from pkf.params.ut_to_scifi import META_NX, META_NY, META_P_MIN, META_SIZE, localize_ut_to_scifi
 from pkf.seeding.forward_steps import (
     TRANSPORT_FAILED,
     new_table_buffers,
     reference_trajectory,
     scan_states,
-    table_localize,
 )
 
 __all__ = [
@@ -1093,7 +1092,7 @@ def _scifi_search(ext, poly, tref, quad, geo, a, s_v, loe, hu, hsig, used, opt, 
     max_bins = bin_count.shape[0] - 1
     if not q_hi > q_lo:
         return 0
-    table_localize(ext.uts_meta, ext.uts_coef, s0[0], s0[1], poly, tref)
+    localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s0[0], s0[1], poly, tref)
     n_nodes = int(math.ceil((q_hi - q_lo) / opt[_O_NODE_DW])) + 1
     n_nodes = min(max(n_nodes, 2), qn.shape[0])
     for k in range(n_nodes):

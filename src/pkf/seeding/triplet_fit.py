@@ -74,9 +74,9 @@ import numba as nb
 import numpy as np
 
 from pkf.jit import NO_REFCOUNT
+from pkf.physics.constants import MASS_PION
 from pkf.physics.materials import highland_theta0
 from pkf.physics.transport import C_LIGHT
-from pkf.simulation.species import MASS_PION
 
 __all__ = [
     "C_LIGHT",

@@ -10,11 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pkf.physics.constants import CTAU_BS, MASS_BS, MASS_KAON, MASS_PHI
 from pkf.simulation.species import (
-    CTAU_BS,
-    MASS_BS,
-    MASS_KAON,
-    MASS_PHI,
     MINBIAS_FRACTIONS,
     PDG_BS,
     PDG_KAON,

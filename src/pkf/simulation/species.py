@@ -1,18 +1,12 @@
-"""Particle species: PDG codes, masses [MeV] and charges of what pkf generates."""
+"""Particle species: PDG codes, masses [MeV] and charges of what pkf generates.
+
+The masses themselves are physical constants (`pkf.physics.constants`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-# PDG 2024 masses in MeV.
-MASS_PION = 139.57039
-MASS_KAON = 493.677
-MASS_PROTON = 938.27208816
-MASS_ELECTRON = 0.51099895
-MASS_MUON = 105.6583755
-MASS_PHI = 1019.461
-MASS_BS = 5366.92
-CTAU_BS = 0.455  # mm (DESIGN §5)
+from pkf.physics.constants import MASS_ELECTRON, MASS_KAON, MASS_MUON, MASS_PION, MASS_PROTON
 
 PDG_BS = 531
 PDG_PHI = 333

@@ -1,4 +1,9 @@
-"""The parametrized extrapolator (paper §4, DESIGN §9.2): no field or material map at fit time.
+"""The parametrized transport (paper §4, DESIGN §9.2): steps, their chain and the extrapolator record.
+
+The one home of the parametrized extrapolation; no field or material map at fit time.
+The Kalman fitters use it through `pkf.fit.extrapolator` (which registers
+`parametrized_step` for `ParametrizedExtrapolator`), the forward search of the pattern
+recognition through `pkf.seeding.forward_steps`, the tuning through the step codes.
 
 A step between two nodes is cut into the paper's steps, chosen by the geometry's
 ``[[steps]]`` table (the type of each subdetector-to-subdetector segment):
@@ -9,12 +14,16 @@ A step between two nodes is cut into the paper's steps, chosen by the geometry's
 - leaving a subdetector by ``velo_to_ut``: one step from the last state inside it to
   the first layer of the next (eqs. 15–20);
 - leaving by ``ut_to_scifi``: per-layer steps to the subdetector's last layer, then the
-  tabulated step to the next subdetector's first layer (eqs. 21–23).
+  tabulated step to the next subdetector's first layer (eqs. 21–23, `pkf.params.ut_to_scifi`).
 
 Each step has its own parameter slot: slot i holds the parameters of the step that
 leaves layer i (the ``velo`` set is shared by all VELO slots). q/p is the momentum at
 production. Only downstream steps exist: the Kalman core's backward filter reuses the
 forward steps (see `pkf.fit.kalman`), so no upstream parameter sets are needed.
+
+Status codes (TRANSPORT_*) are the values of the track status codes of
+`pkf.fit.extrapolator` (STATUS_OK, STATUS_EXTRAPOLATION_FAILED, STATUS_BELOW_P_MIN).
+Units: mm, 1/MeV.
 """
 
 from __future__ import annotations
@@ -24,14 +33,13 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from pkf.fit.extrapolator import (
-    STATUS_EXTRAPOLATION_FAILED,
-    STATUS_OK,
-    register_extrapolator,
-)
-from pkf.fit.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
 from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
+from pkf.physics.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
+
+TRANSPORT_OK = 0
+TRANSPORT_FAILED = 2  # an unphysical step (|tx/N| ≥ 1 after the VELO→UT kink, NaN), a bad table
+TRANSPORT_BELOW_P_MIN = 4  # the UT→SciFi table evaluated beyond its p_min (|w| > 1)
 
 STEP_NONE = -1
 STEP_VELO = 0
@@ -49,7 +57,7 @@ class ParametrizedExtrapolator(NamedTuple):
     layer_z (L) [mm]; layer_sub (L) subdetector index; sub_first/sub_last (S) first and
     last layer of each subdetector (−1 if absent); within_type/between_type (S) the step
     type inside the subdetector and for leaving it (STEP_*); extrapolation (L, 9) and
-    noise (L, 5) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays.
+    noise (L, 6) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays.
     """
 
     layer_z: np.ndarray
@@ -79,7 +87,7 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
         velo_step(p, cur_state, z0, z1, seg_state, seg_jac)
     elif kind == STEP_VELO_TO_UT:
         if not velo_to_ut_step(p, cur_state, z0, z1, seg_state, seg_jac):
-            return STATUS_EXTRAPOLATION_FAILED
+            return TRANSPORT_FAILED
     elif kind == STEP_UT_TO_SCIFI:
         # The table was made by RK4 with the local momentum; the state carries the one at
         # production: evaluate it at q/p' = q/p / (1 − ΔE·|q/p|), ΔE = p[0] [MeV] the tuned
@@ -89,8 +97,8 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
         seg_state[:] = cur_state
         seg_state[4] = qop / shrink
         status = ut_to_scifi_extrapolate(uts_meta, uts_coef, seg_state, seg_state, seg_jac)
-        if status != STATUS_OK:
-            return status  # STATUS_BELOW_P_MIN, or STATUS_EXTRAPOLATION_FAILED for a bad table
+        if status != TRANSPORT_OK:
+            return status  # TRANSPORT_BELOW_P_MIN, or TRANSPORT_FAILED for a bad table
         dqop = 1.0 / (shrink * shrink)
         for i in range(4):
             seg_jac[i, 4] *= dqop
@@ -98,8 +106,22 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
     elif kind == STEP_UT or kind == STEP_SCIFI:
         layer_step(p, cur_state, z0, z1, seg_state, seg_jac)
     else:
-        return STATUS_EXTRAPOLATION_FAILED
-    return STATUS_OK
+        return TRANSPORT_FAILED
+    return TRANSPORT_OK
+
+
+@nb.njit(cache=True, inline="always")
+def step_noise(pn, state, dz, jac, noise):
+    """Process noise of one paper step of length dz [mm] from `state` (5): paper eq. 11
+    with the slot's noise parameters pn, plus the energy-loss straggling before the step,
+    a q/p variance (pn[5]·(q/p)²)² [1/MeV²] carried through the step's Jacobian `jac`.
+    The q/p of `state` sets the size of both (a search evaluates it at a hypothesis)."""
+    parametrized_noise(pn, state, dz, noise)
+    if pn[5] > 0.0:  # energy-loss straggling before the step: q/p noise through J
+        var_qop = (pn[5] * state[4] * state[4]) ** 2
+        for i in range(5):
+            for j in range(5):
+                noise[i, j] += var_qop * jac[i, 4] * jac[j, 4]
 
 
 @nb.njit(cache=True, inline="always")
@@ -132,13 +154,13 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
         for i in range(5):
             for j in range(5):
                 noise_out[i, j] = 0.0
-        return STATUS_OK
+        return TRANSPORT_OK
     # small helpers get plain arrays: passing the whole context costs ~20 reference counts
     layer_z = ext.layer_z
     a = _layer_of(layer_z, z_from)
     b = _layer_of(layer_z, z_to)
     if a < 0 or b < 0 or b < a:
-        return STATUS_EXTRAPOLATION_FAILED
+        return TRANSPORT_FAILED
     seg_jac = work[0]
     seg_noise = work[1]
     tmp = work[2]
@@ -150,15 +172,9 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
         kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type, cur, b)
         status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
                         layer_z[cur], layer_z[nxt], seg_state, seg_jac)
-        if status != STATUS_OK:
+        if status != TRANSPORT_OK:
             return status
-        pn = ext.noise[slot]
-        parametrized_noise(pn, state_out, layer_z[nxt] - layer_z[cur], seg_noise)
-        if pn[5] > 0.0:  # energy-loss straggling before the step: q/p noise through J
-            var_qop = (pn[5] * state_out[4] * state_out[4]) ** 2
-            for i in range(5):
-                for j in range(5):
-                    seg_noise[i, j] += var_qop * seg_jac[i, 4] * seg_jac[j, 4]
+        step_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_jac, seg_noise)
         copy5(seg_state, state_out)
         if first:  # F = J, Q = Q_seg: most node-to-node steps are a single paper step
             copy55(seg_jac, jac_out)
@@ -172,7 +188,5 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
                 for j in range(5):
                     noise_out[i, j] = tmp2[i, j] + seg_noise[i, j]
         cur = nxt
-    return STATUS_OK
+    return TRANSPORT_OK
 
-
-register_extrapolator(ParametrizedExtrapolator, parametrized_step)
