@@ -126,7 +126,9 @@ def load_truth(run: RunInput) -> DatasetTruth:
         kaons_of.setdefault(int(g_key), []).append(int(k_key))
     quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
     kaon_keys = np.array(quads, dtype=np.int64).reshape(-1, 4)
-    return DatasetTruth("ok", int(np.unique(event_id).size), reco, p[pos], eta[pos], kaon_keys, int(bs.sum()))
+    kaon_particles = np.sort(p_key_sorted[np.abs(pdg) == 321])
+    return DatasetTruth("ok", int(np.unique(event_id).size), reco, p[pos], eta[pos], kaon_keys, int(bs.sum()),
+                        kaon_particles)
 
 
 def load_truths(runs: list[RunInput]) -> list[DatasetTruth | None]:

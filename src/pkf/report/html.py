@@ -169,13 +169,15 @@ def _mass(summary: dict) -> str:
         fit = m.get("fit")
         if fit is None:
             continue
-        rows.append([_esc(name), _esc(m["location"]), _num(m.get("n_signal_decays")), _num(m.get("n_candidates")),
-                     _num(fit["n_candidates"]), _pm(fit["mean"], fit["mean_error"], ".1f"),
+        rows.append([_esc(name), _esc(m["location"]), _num(m.get("n_signal_decays")), _num(m.get("n_truth_matched")),
+                     _num(fit["n_candidates"]), _num(m.get("n_signal_candidates")),
+                     _pm(fit["mean"], fit["mean_error"], ".1f"),
                      _pm(fit["sigma"], fit["sigma_error"], ".2f"), _pm(fit["n_signal"], fit["n_signal_error"], ".1f"),
                      _pm(fit["n_background"], fit["n_background_error"], ".1f"), _esc(fit["status"])])
     if not rows:
         return ""
-    html = _table(["entry", "state", "B<sub>s</sub> decays", "candidates", "in window", "mean [MeV]", "σ [MeV]",
+    html = _table(["entry", "state", "B<sub>s</sub> decays", "truth-matched", "candidates in window",
+                   "of four signal kaons", "mean [MeV]", "σ [MeV]",
                    "N<sub>sig</sub>", "N<sub>bkg</sub>", "fit status"], rows, left=2)
     ratios = []
     for name, rep in summary["entries"].items():

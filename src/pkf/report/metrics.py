@@ -21,18 +21,18 @@ Conventions
 - χ²/ndf uses tracks with fit status ``ok``; "real" = matched to an MC particle,
   "ghost" = ``is_ghost``. Cutting at c keeps χ²/ndf < c: real efficiency = kept real
   / real, ghost rejection = removed ghosts / ghosts.
-- B_s⁰ → φφ: kaons with ``from_signal``, |pdg| = 321, parent φ (333), grand-parent
-  B_s (531) in the dataset's ``particles``; each kaon takes the fitted **beamline**
-  state of its matched track (fit ``ok``, not a ghost; among clones the highest
-  match fraction, then the lowest track_id); decays whose four kaons are long
-  reconstructible particles (as for the efficiency; paper §5 uses only tracks with
-  measurements in every subdetector — a kaon seen in the VELO alone, or VELO + UT, has
-  no usable momentum: 70% of those had p_fit < 0.8·p_true, measured on 2000 events)
-  and all found give a candidate; mass from four-momenta with the kaon mass (:mod:`pkf.report.massfit`),
-  Gaussian + linear background, extended unbinned ML in the window. Each fitter's
-  ``fit`` uses its own candidates (paper Fig. 4); fitters can lose different decays (the
-  parametrized fitter has no state for a kaon below the UT→SciFi table's p_min = 3 GeV,
-  DESIGN §9.2), so ``ratio_to_reference`` compares σ(m) on the *common* candidates —
+- B_s⁰ → φφ (paper Fig. 4): the peak is built from **all kaon tracks of each event**
+  (:mod:`pkf.report.combinatorics`: kaon identification from MC truth since no RICH is
+  simulated, K⁺K⁻ pairs in the φ window, two φ with distinct kaons whose beamline points lie
+  within a few mm in z), so it sits on combinatorial background; Gaussian + linear
+  background, extended unbinned ML in the window (``fit``). Separately, the **truth-matched**
+  signal decays: kaons with ``from_signal``, |pdg| = 321, parent φ (333), grand-parent B_s
+  (531); each kaon takes the fitted **beamline** state of its matched track (fit ``ok``, not a
+  ghost; among clones the highest match fraction, then the lowest track_id); decays whose four
+  kaons are long reconstructible particles (paper §5 uses only tracks with measurements in
+  every subdetector — a kaon seen in the VELO alone, or VELO + UT, has no usable momentum: 70%
+  of those had p_fit < 0.8·p_true, measured on 2000 events). Fitters can lose different
+  decays, so ``ratio_to_reference`` compares σ(m) on the *common* truth-matched candidates —
   the same decays with the same kaons — with a jackknife error on the ratio.
 - Efficiency: reconstructible long particles of the dataset (DESIGN §10, via
   :func:`pkf.pipeline.matching.reconstructible_particles`); a particle is found by
@@ -93,7 +93,9 @@ Top level:
     MC instead ``all_efficiency`` (fraction of all tracks kept)}.
   - ``mass``: ``available``, ``note``, ``location``, ``n_signal_decays`` (B_s in the
     dataset), ``n_long_decays`` (those whose four kaons are long reconstructible),
-    ``n_candidates`` (long decays with all four kaons fitted), ``fit`` =
+    ``n_truth_matched`` (long decays with all four kaons fitted), ``n_candidates`` (all-kaon
+    candidates in the window), ``n_signal_candidates`` (those made of four signal kaons),
+    ``selection`` (the cuts), ``fit`` (on the all-kaon candidates) =
     {``mean``, ``mean_error``, ``sigma``, ``sigma_error``, ``n_signal``,
     ``n_signal_error``, ``n_background``, ``n_background_error``, ``slope``,
     ``n_candidates`` (in the window), ``window``, ``valid``, ``status``} [MeV];
@@ -127,6 +129,7 @@ import pkf
 from pkf.errors import InputError
 from pkf.io.schemas import particle_key
 from pkf.params.gauss import gaussian_core
+from pkf.report.combinatorics import KAON_PT_MIN, PHI_WINDOW, VERTEX_DZ, combinatorial_bs_masses
 from pkf.report.massfit import (
     BS_MASS,
     KAON_MASS,
@@ -185,8 +188,9 @@ class FitterArrays:
     chi2_ndf_real: np.ndarray = field(default_factory=lambda: np.zeros(0))
     chi2_ndf_ghost: np.ndarray = field(default_factory=lambda: np.zeros(0))
     chi2_ndf_all: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    masses: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    mass_decays: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # decay index per mass
+    masses: np.ndarray = field(default_factory=lambda: np.zeros(0))  # all-kaon B_s candidates (Fig. 4)
+    signal_masses: np.ndarray = field(default_factory=lambda: np.zeros(0))  # truth-matched decays
+    mass_decays: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # decay index per signal mass
     mass_fit: MassFit | None = None
 
 
@@ -471,6 +475,7 @@ class DatasetTruth:
     reco_eta: np.ndarray = field(default_factory=lambda: np.zeros(0))
     kaon_keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))  # per B_s decay
     n_bs: int = 0
+    kaon_particles: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted, |pdg| = 321
 
 
 def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
@@ -525,6 +530,39 @@ def long_decays(truth: DatasetTruth) -> np.ndarray:
     return np.isin(truth.kaon_keys, truth.reco_key).all(axis=1)
 
 
+def _best_track_per_particle(chi2_ok: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+    """(particle keys sorted, track key of each): the matched, non-ghost track of each particle;
+    among clones the highest match fraction, then the lowest track key."""
+    ghost = column(chi2_ok, "is_ghost", bool)
+    mc = column(chi2_ok, "mc_particle_id", np.int64)
+    sel = ~ghost & (mc > 0)
+    ev = column(chi2_ok, "event_id", np.int64)[sel]
+    pkey = particle_key(ev, mc[sel])
+    tkey = ev * _KEY + column(chi2_ok, "track_id", np.int64)[sel]
+    frac = column(chi2_ok, "match_fraction")[sel]
+    order = np.lexsort((tkey, -frac, pkey))
+    pkey, tkey = pkey[order], tkey[order]
+    first = np.r_[True, pkey[1:] != pkey[:-1]] if pkey.size else np.zeros(0, dtype=bool)
+    return pkey[first], tkey[first]
+
+
+def all_kaon_bs_masses(truth: DatasetTruth, chi2_ok: pa.Table, states: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+    """B_s candidate masses [MeV] from all kaon tracks of each event (kaon identification from MC
+    truth; :mod:`pkf.report.combinatorics`), and whether each candidate's four kaons are signal kaons.
+    ``states`` holds the beamline states of one fitter."""
+    pkey, tkey = _best_track_per_particle(chi2_ok)
+    kpos, is_kaon = lookup_sorted(truth.kaon_particles, pkey)
+    tkey, pkey = tkey[is_kaon], pkey[is_kaon]
+    skey = _track_key(states)
+    sorder = np.argsort(skey, kind="stable")
+    spos, found = lookup_sorted(skey[sorder], tkey)
+    rows, pkey = sorder[spos][found], pkey[found]
+    signal = np.isin(pkey, truth.kaon_keys.reshape(-1))
+    return combinatorial_bs_masses(column(states, "event_id", np.int64)[rows], column(states, "qop")[rows],
+                                   column(states, "tx")[rows], column(states, "ty")[rows],
+                                   column(states, "z")[rows], signal)
+
+
 def bs_kaon_state_rows(truth: DatasetTruth, chi2_ok: pa.Table, states: pa.Table,
                        long_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Rows of ``states`` of the four kaons of each signal decay whose four kaons have a
@@ -536,19 +574,7 @@ def bs_kaon_state_rows(truth: DatasetTruth, chi2_ok: pa.Table, states: pa.Table,
     none = (np.zeros(0, dtype=np.int64), np.zeros((0, 4), dtype=np.int64))
     if truth.kaon_keys.shape[0] == 0:
         return none
-    ghost = column(chi2_ok, "is_ghost", bool)
-    mc = column(chi2_ok, "mc_particle_id", np.int64)
-    sel = ~ghost & (mc > 0)
-    ev = column(chi2_ok, "event_id", np.int64)[sel]
-    pkey = particle_key(ev, mc[sel])
-    tkey = ev * _KEY + column(chi2_ok, "track_id", np.int64)[sel]
-    frac = column(chi2_ok, "match_fraction")[sel]
-    # best track per particle: highest match fraction, then lowest track key
-    order = np.lexsort((tkey, -frac, pkey))
-    pkey, tkey = pkey[order], tkey[order]
-    first = np.r_[True, pkey[1:] != pkey[:-1]] if pkey.size else np.zeros(0, dtype=bool)
-    pkey, tkey = pkey[first], tkey[first]
-
+    pkey, tkey = _best_track_per_particle(chi2_ok)
     kaons = truth.kaon_keys.reshape(-1)
     kpos, kfound = lookup_sorted(pkey, kaons)
     track = tkey[kpos]
@@ -615,7 +641,7 @@ def mass_ratio_on_common_candidates(masses: np.ndarray, reference_masses: np.nda
 def _mass_comparison(mine: FitterArrays, reference: FitterArrays) -> dict:
     """`mass_ratio_on_common_candidates` on the decays both fitters have a candidate for."""
     common, i, j = np.intersect1d(mine.mass_decays, reference.mass_decays, return_indices=True)
-    result = mass_ratio_on_common_candidates(mine.masses[i], reference.masses[j])
+    result = mass_ratio_on_common_candidates(mine.signal_masses[i], reference.signal_masses[j])
     return {
         "candidates": "B_s decays with four long kaons that both fitters fitted (the same decays, the same kaons)",
         "n_candidates": result["n_candidates"],
@@ -712,12 +738,18 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
                         location=MASS_LOCATION, n_signal_decays=0)
     else:
         states = rows_of(run.states, name, MASS_LOCATION)
-        arrays.masses, arrays.mass_decays = _bs_masses(truth, chi2_ok, states)
+        arrays.signal_masses, arrays.mass_decays = _bs_masses(truth, chi2_ok, states)
+        arrays.masses, signal = all_kaon_bs_masses(truth, chi2_ok, states)
         arrays.mass_fit = fit_mass_peak(arrays.masses, MASS_WINDOW_MEV)
+        lo, hi = MASS_WINDOW_MEV
+        in_window = (arrays.masses > lo) & (arrays.masses < hi)
         mass = _section(
             arrays.mass_fit.status == "ok", None if arrays.mass_fit.status == "ok" else arrays.mass_fit.status,
             location=MASS_LOCATION, n_signal_decays=truth.n_bs,
-            n_long_decays=int(long_decays(truth).sum()), n_candidates=int(arrays.masses.size),
+            n_long_decays=int(long_decays(truth).sum()), n_truth_matched=int(arrays.signal_masses.size),
+            n_candidates=int(in_window.sum()), n_signal_candidates=int((in_window & signal).sum()),
+            selection={"kaon_pt_min_mev": KAON_PT_MIN, "phi_window_mev": PHI_WINDOW, "vertex_dz_mm": VERTEX_DZ,
+                       "kaon_id": "MC truth (|pdg| = 321; no RICH is simulated)"},
             fit=_fit_dict(arrays.mass_fit.as_dict()), ratio_to_reference=None,
         )
 

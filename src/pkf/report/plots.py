@@ -344,8 +344,9 @@ def _plot_mass(data: ReportData, out: Path) -> list[Plot]:
         ax.set_ylabel(f"candidates / {_MASS_BIN_MEV:g} MeV")
         ax.legend(fontsize=18, loc="upper right")
     _save(fig, out / "mass.png")
-    caption = ("B_s⁰ → φφ invariant mass from the four truth-matched kaon tracks (beamline states) per fitter, "
-               "with the Gaussian + linear fit (extended unbinned maximum likelihood).")
+    caption = ("B_s⁰ → φφ invariant mass from all kaon tracks of each event (kaon identification from MC "
+               "truth; K⁺K⁻ in the φ window, four kaons within a few mm in z; beamline states) per entry, "
+               "with the Gaussian + linear background fit (extended unbinned maximum likelihood).")
     return [Plot("mass.png", caption)]
 
 
