@@ -41,6 +41,10 @@ __all__ = [
     "open_dataset",
     "validate_hit_layers",
     "validate_consistency",
+    "validate_hit_area",
+    "find_truth_tables",
+    "pair_keys",
+    "LayerArea",
 ]
 
 _MAGIC = b"PAR1"
@@ -356,6 +360,26 @@ def _first_duplicate(keys: list[np.ndarray]) -> tuple[int, int] | None:
     return int(later[i]), int(earlier[i])
 
 
+def _outside(column: pa.ChunkedArray, lowest: float | None, highest: float | None) -> np.ndarray:
+    """Mask of the values below ``lowest`` or above ``highest`` (None: no bound; nulls are inside)."""
+    values = column.to_numpy(zero_copy_only=False)
+    bad = np.zeros(values.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        if lowest is not None:
+            bad |= values < lowest
+        if highest is not None:
+            bad |= values > highest
+    return bad
+
+
+def _range_text(lowest: float | None, highest: float | None) -> str:
+    if highest is None:
+        return f">= {lowest!r}"
+    if lowest is None:
+        return f"<= {highest!r}"
+    return f"in [{lowest!r}, {highest!r}]"
+
+
 def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None, source: TableSource) -> None:
     key = _default_key(table, spec)
     if table.num_rows == 0:
@@ -386,6 +410,20 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
             if row is not None:
                 value = _format_value(col[row].as_py())
                 raise _row_error(source, table, row, name, key, f"is {value}, must be >= 0")
+        for name, lowest, highest, why in spec.ranges:
+            row = _first_true(_outside(table.column(name), lowest, highest))
+            if row is not None:
+                value = _format_value(table.column(name)[row].as_py())
+                raise _row_error(source, table, row, name, key,
+                                 f"is {value}, must be {_range_text(lowest, highest)} ({why})")
+        for group, why in spec.nonzero_vectors:
+            parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
+            length = np.sqrt(np.sum([x * x for x in parts], axis=0))  # 0 also where the squares underflow
+            row = _first_true(length == 0)
+            if row is not None:
+                values = ", ".join(_format_value(float(x[row])) for x in parts)
+                raise _row_error(source, table, row, group[0], key,
+                                 f"is part of ({', '.join(group)}) = ({values}), of length 0: must be > 0 ({why})")
         for group in spec.null_together:
             nulls = [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
             any_null = np.logical_or.reduce(nulls)
@@ -463,6 +501,34 @@ def read_table(path: str | os.PathLike, schema: pa.Schema, *, name: str) -> pa.T
     return table
 
 
+#: Hits may lie this many of their own σ outside their layer's active area (DESIGN §13) ...
+AREA_TOLERANCE_SIGMAS = 5.0
+#: ... plus this margin [mm], for a producer whose placement of the layers differs from the
+#: nominal geometry by a fraction of a millimetre (real modules are aligned to better).
+AREA_MARGIN_MM = 0.1
+
+
+@dataclass(frozen=True)
+class LayerArea:
+    """Where each layer can measure (per layer, indexed by ``layer``; lengths in mm).
+
+    The measured coordinates of a hit of layer ``k`` on its active area lie in
+    ``[u_min[k], u_max[k]]`` and, for pixel layers, ``[v_min[k], v_max[k]]``: for a strip
+    layer these are the bounds of u = x·cos α + y·sin α over the whole area (the strip's
+    unmeasured coordinate may lie anywhere on it). A pixel hit must also lie outside the
+    beam hole: r ≥ ``hole_radius`` and not (|u| < ``hole_half_u`` and |v| < ``hole_half_v``)
+    (0 where a layer has no such hole; strips: 0, a hole does not exclude any u).
+    """
+
+    u_min: np.ndarray
+    u_max: np.ndarray
+    v_min: np.ndarray
+    v_max: np.ndarray
+    hole_radius: np.ndarray
+    hole_half_u: np.ndarray
+    hole_half_v: np.ndarray
+
+
 def validate_hit_layers(
     table: pa.Table,
     layer_z: Sequence[float] | np.ndarray,
@@ -470,6 +536,7 @@ def validate_hit_layers(
     *,
     source: Source = "hits",
     z_tolerance: float = 1e-6,
+    area: LayerArea | None = None,
 ) -> None:
     """Check hits against a geometry's layers.
 
@@ -479,10 +546,13 @@ def validate_hit_layers(
         layer_kind: kind of each layer: 0 = pixel (measures u and v), 1 = strip (u only).
         source: file name (or :class:`TableSource`) to name in messages.
         z_tolerance: allowed |z − layer_z[layer]| [mm].
+        area: the layers' active areas; if given, also checks errors and positions
+            (:func:`validate_hit_area`).
 
     Raises:
         InputError: ``layer`` outside [0, n_layers); ``z`` not the layer's z; ``v`` or
-            ``sigma_v`` set on a strip layer or missing on a pixel layer.
+            ``sigma_v`` set on a strip layer or missing on a pixel layer; with ``area``,
+            an error larger than the layer or a hit outside its layer's area.
         ValueError: ``layer_z`` and ``layer_kind`` differ in length or a kind is not 0/1.
     """
     layer_z = np.asarray(layer_z, dtype=np.float64)
@@ -529,12 +599,74 @@ def validate_hit_layers(
         else:
             problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
         raise _row_error(source, table, row, column, key, problem)
+    if area is not None:
+        validate_hit_area(table, area, source=source)
 
 
-def _pair_keys(
+def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hits") -> None:
+    """Check the errors and positions of hits (with valid layers) against their layers' areas.
+
+    - ``sigma_u`` (``sigma_v``) at most the layer's extent in u (v): a larger error says
+      nothing about where the particle passed and only hides a unit or column mix-up.
+      (The lower bound, :data:`~pkf.io.schemas.MIN_SIGMA_MM`, needs no geometry and is a
+      rule of the hits table.)
+    - u (v) at most ``AREA_TOLERANCE_SIGMAS`` of the hit's own σ plus ``AREA_MARGIN_MM``
+      outside the layer's area: a simulated hit lies within a few σ of the area (the
+      smearing of a particle that crossed it near an edge) and noise hits lie on it.
+
+    Raises:
+        InputError: one line naming the file, the column and the first bad row.
+    """
+    key = ("event_id", "hit_id", "layer")
+    layer = table.column("layer").to_numpy().astype(np.int64)
+    u = table.column("u").to_numpy()
+    sigma_u = table.column("sigma_u").to_numpy()
+    v = table.column("v").to_numpy(zero_copy_only=False)  # NaN where null (strips)
+    sigma_v = table.column("sigma_v").to_numpy(zero_copy_only=False)
+    pixel = ~np.isnan(v)
+    for name, sigma, lo, hi in (("sigma_u", sigma_u, area.u_min, area.u_max),
+                                ("sigma_v", sigma_v, area.v_min, area.v_max)):
+        extent = (hi - lo)[layer]
+        row = _first_true(sigma > extent)
+        if row is not None:
+            raise _row_error(source, table, row, name, key,
+                             f"is {float(sigma[row])!r} mm, larger than layer {layer[row]}'s extent "
+                             f"({float(extent[row])!r} mm): not a measurement error")
+    tol_u = AREA_TOLERANCE_SIGMAS * sigma_u + AREA_MARGIN_MM
+    tol_v = AREA_TOLERANCE_SIGMAS * np.where(pixel, sigma_v, 0.0) + AREA_MARGIN_MM
+    with np.errstate(invalid="ignore"):
+        r_hole = area.hole_radius[layer]
+        inside_round = pixel & (r_hole > 0) & (np.hypot(u, v) < r_hole - np.maximum(tol_u, tol_v))
+        inside_square = (pixel & (np.abs(u) < area.hole_half_u[layer] - tol_u)
+                         & (np.abs(v) < area.hole_half_v[layer] - tol_v))
+        checks = (
+            ("u", (u < area.u_min[layer] - tol_u) | (u > area.u_max[layer] + tol_u)),
+            ("v", pixel & ((v < area.v_min[layer] - tol_v) | (v > area.v_max[layer] + tol_v))),
+            ("u", inside_round | inside_square),
+        )
+    rows = [(_first_true(bad), name, k) for k, (name, bad) in enumerate(checks)]
+    found = [r for r in rows if r[0] is not None]
+    if not found:
+        return
+    row, name, k = min(found)
+    lay = int(layer[row])
+    value = float((u if name == "u" else v)[row])
+    if k == 2:
+        problem = (f"is {value!r} mm with v = {float(v[row])!r} mm: inside layer {lay}'s beam hole "
+                   f"by more than {AREA_TOLERANCE_SIGMAS:g} σ + {AREA_MARGIN_MM:g} mm")
+    else:
+        lo, hi = (area.u_min, area.u_max) if name == "u" else (area.v_min, area.v_max)
+        problem = (f"is {value!r} mm, outside layer {lay}'s active area "
+                   f"[{float(lo[lay])!r}, {float(hi[lay])!r}] mm by more than {AREA_TOLERANCE_SIGMAS:g} σ "
+                   f"+ {AREA_MARGIN_MM:g} mm")
+    raise _row_error(source, table, row, name, key, problem)
+
+
+def pair_keys(
     ev_a: np.ndarray, id_a: np.ndarray, ev_b: np.ndarray, id_b: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Encode (event, id) pairs of two tables as int64 keys that are equal iff the pairs are."""
+    """Encode (event, id) pairs of two tables as int64 keys that are equal iff the pairs are
+    (for any int64 values, negative ones included)."""
     if ev_a.size == 0 or ev_b.size == 0:
         return np.zeros(ev_a.size, np.int64), np.zeros(ev_b.size, np.int64)
     ev_lo = min(int(ev_a.min()), int(ev_b.min()))
@@ -557,7 +689,7 @@ def _missing_pairs(
     """First row whose (event, id) is not among the reference pairs (only rows where ``check``)."""
     if ev.size == ref_ev.size and np.array_equal(ev, ref_ev) and np.array_equal(ids, ref_ids):
         return None
-    keys, ref_keys = _pair_keys(ev, ids, ref_ev, ref_ids)
+    keys, ref_keys = pair_keys(ev, ids, ref_ev, ref_ids)
     found = np.isin(keys, ref_keys)
     bad = ~found if check is None else check & ~found
     return _first_true(bad)
@@ -572,7 +704,9 @@ def validate_consistency(
 ) -> None:
     """Check that the MC truth refers to existing hits and particles.
 
-    - every ``mc_hits`` row has a ``hits`` row with the same (event_id, hit_id);
+    - every ``mc_hits`` row has a ``hits`` row with the same (event_id, hit_id), and
+      every ``hits`` row an ``mc_hits`` row (a hit without truth would shift the
+      efficiency silently; noise hits have a row with particle_id 0);
     - every non-zero ``mc_hits.particle_id`` exists in ``particles`` for that event;
     - every ``particles.parent_id`` is 0 or a particle of the same event.
 
@@ -601,6 +735,13 @@ def validate_consistency(
             hits_name = str(sources.get("hits", "hits"))
             raise _row_error(
                 src_mc, mc_hits, row, "hit_id", key, f"has no hit with the same event_id, hit_id in {hits_name}"
+            )
+        hits_ev = hits.column("event_id").to_numpy()
+        row = _missing_pairs(hits_ev, hits.column("hit_id").to_numpy(), mc_ev, mc_hits.column("hit_id").to_numpy())
+        if row is not None:
+            raise _row_error(
+                sources.get("hits", "hits"), hits, row, "hit_id", key,
+                f"has no row in {src_mc}: with MC truth every hit needs one (noise hits: particle_id 0)",
             )
         if particles is not None:
             pid = mc_hits.column("particle_id").to_numpy()
@@ -661,6 +802,29 @@ def read_meta(dataset_dir: str | os.PathLike) -> dict:
     return meta
 
 
+def find_truth_tables(dataset_dir: str | os.PathLike) -> dict[str, Path | None]:
+    """Locate the MC truth tables ``particles`` and ``mc_hits`` of a dataset (None if absent).
+
+    MC truth is both tables or neither. One without the other is an incomplete dataset
+    (a lost or half-copied file), not a dataset without MC: ``mc_hits`` alone gives no
+    production momentum for the efficiency bins, the q/p pulls and the beamline truth,
+    ``particles`` alone cannot be matched to any hit; skipping the MC silently would
+    give a run that looks complete but is not. So it is an error naming the missing table.
+
+    Raises:
+        InputError: exactly one of the two tables exists.
+    """
+    path = Path(dataset_dir)
+    found = {name: find_table(path, name) for name in ("particles", "mc_hits")}
+    for missing, present in (("particles", "mc_hits"), ("mc_hits", "particles")):
+        if found[missing] is None and found[present] is not None:
+            raise InputError(
+                f"{path / missing}.parquet: not found (nor {missing}/), but {found[present]} is present: "
+                f"MC truth needs both particles and mc_hits"
+            )
+    return found
+
+
 @dataclass(frozen=True)
 class Dataset:
     """A validated dataset directory (DESIGN §6).
@@ -692,6 +856,7 @@ def open_dataset(
     *,
     layer_z: Sequence[float] | np.ndarray | None = None,
     layer_kind: Sequence[int] | np.ndarray | None = None,
+    area: LayerArea | None = None,
 ) -> Dataset:
     """Open and validate a dataset directory: ``meta.json``, ``hits`` and, if present,
     ``particles`` and ``mc_hits``, plus their consistency (:func:`validate_consistency`).
@@ -700,6 +865,7 @@ def open_dataset(
         dataset_dir: the dataset directory.
         layer_z, layer_kind: if both are given, the hits are also checked against
             these geometry layers (:func:`validate_hit_layers`).
+        area: with them, the layers' active areas (errors and positions of the hits).
 
     Raises:
         InputError: one line naming the file, column and first bad row.
@@ -711,17 +877,18 @@ def open_dataset(
     if not path.is_dir():
         raise InputError(f"{shown}: not a directory (a dataset is a directory with meta.json and hits)")
     meta = read_meta(path)
+    truth = find_truth_tables(path)
     hits, hits_src = _read_with_source(path, HITS, "hits")
     sources = {"hits": hits_src}
     tables: dict[str, pa.Table | None] = {}
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
-        if find_table(path, name) is None:
+        if truth[name] is None:
             tables[name] = None
             continue
         tables[name], sources[name] = _read_with_source(path, schema, name)
     if (layer_z is None) != (layer_kind is None):
         raise ValueError("give both layer_z and layer_kind, or neither")
     if layer_z is not None:
-        validate_hit_layers(hits, layer_z, layer_kind, source=hits_src)
+        validate_hit_layers(hits, layer_z, layer_kind, source=hits_src, area=area)
     validate_consistency(hits, tables["particles"], tables["mc_hits"], sources=sources)
     return Dataset(path, meta, hits, tables["particles"], tables["mc_hits"], sources)
