@@ -100,11 +100,7 @@ class ParameterSet:
         )
 
     def check_geometry(self, geometry: Geometry, source: str) -> None:
-        if self.geometry_hash != geometry.content_hash:
-            raise InputError(
-                f"{source}: parameters are for geometry {self.geometry_name!r} (hash {self.geometry_hash}), "
-                f"not for {geometry.name!r} (hash {geometry.content_hash}); run pkf tune for it"
-            )
+        _check_geometry_record(self.geometry_name, self.geometry_hash, geometry, source)
 
     def to_json_dict(self) -> dict:
         return {
@@ -147,6 +143,14 @@ class ParameterSet:
     def load(cls, path: str | Path) -> ParameterSet:
         path = Path(path)
         return cls.from_json_dict(_read_parameter_json(path), source=str(path))
+
+
+def _check_geometry_record(name, content_hash, geometry: Geometry, source: str) -> None:
+    if content_hash != geometry.content_hash:
+        raise InputError(
+            f"{source}: parameters are for geometry {name!r} (hash {content_hash}), "
+            f"not for {geometry.name!r} (hash {geometry.content_hash}); run pkf tune for it"
+        )
 
 
 def _read_parameter_json(path: Path) -> dict:
@@ -239,7 +243,11 @@ def load_parameters(geometry: Geometry, path: str | Path | None) -> ParameterSet
     if path is None:
         return shipped_parameters(geometry)
     data = _read_parameter_json(Path(path))
+    record = data.get("geometry")
+    if data.get("format") == FORMAT and isinstance(record, dict) and "hash" in record:
+        # a file for another geometry says so first; then its coefficients, before they are read
+        _check_geometry_record(record.get("name"), record["hash"], geometry, f"--params {path}")
+        check_coefficients(data, geometry, source=f"--params {path}")
     params = ParameterSet.from_json_dict(data, source=str(path))
     params.check_geometry(geometry, source=f"--params {path}")
-    check_coefficients(data, geometry, source=f"--params {path}")
     return params
