@@ -63,3 +63,25 @@ def test_streamed_and_in_memory_readers_agree(case, tmp_path, capsys):
         load_dataset(dataset)
     assert main(["reconstruct", str(dataset), "--out", str(tmp_path / "run"), "--workers", "1"]) == 2
     assert capsys.readouterr().err == f"pkf: error: {in_memory.value}\n"
+
+
+def test_readers_agree_on_the_first_bad_row_across_batches(tmp_path, monkeypatch, capsys):
+    """Issue 13: two defects of different checks in different record batches of the streamed
+    scan (the later check's in the earlier batch): both readers name the earlier row."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    import pkf.io.stream
+
+    dataset = _copy("hit_outside_area", tmp_path)  # u = 1e5 mm at row 7
+    hits = pq.read_table(dataset / "hits.parquet")
+    sigma_u = hits.column("sigma_u").to_numpy().copy()
+    sigma_u[300] = 1e4  # larger than any layer, in a later batch
+    hits = hits.set_column(hits.column_names.index("sigma_u"), "sigma_u", pa.array(sigma_u))
+    pq.write_table(hits, dataset / "hits.parquet")
+    monkeypatch.setattr(pkf.io.stream, "BATCH_ROWS", 100)
+    with pytest.raises(InputError) as in_memory:
+        load_dataset(dataset)
+    assert "column 'u': row 7 (" in str(in_memory.value)
+    assert main(["reconstruct", str(dataset), "--out", str(tmp_path / "run"), "--workers", "1"]) == 2
+    assert capsys.readouterr().err == f"pkf: error: {in_memory.value}\n"

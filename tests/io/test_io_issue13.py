@@ -66,8 +66,10 @@ def test_hits_within_the_tolerance_pass_and_beyond_fail():
 
 
 def test_first_bad_row_over_all_columns():
-    hits = _hits_with(v=(4, 50.0), u=(6, 50.0))
-    raises_input_error(lambda: _check(hits), "column 'v': row 4 (")
+    """The first bad row of all checks (as a streamed scan, batch by batch, finds it)."""
+    raises_input_error(lambda: _check(_hits_with(v=(4, 50.0), u=(6, 50.0))), "column 'v': row 4 (")
+    raises_input_error(lambda: _check(_hits_with(u=(6, 50.0), sigma_v=(9, 50.0))), "column 'u': row 6 (")
+    raises_input_error(lambda: _check(_hits_with(u=(6, 50.0), sigma_u=(5, 50.0))), "column 'sigma_u': row 5 (")
 
 
 @pytest.mark.parametrize("hole", ["round", "square"])

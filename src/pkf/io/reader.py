@@ -624,42 +624,39 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
     v = table.column("v").to_numpy(zero_copy_only=False)  # NaN where null (strips)
     sigma_v = table.column("sigma_v").to_numpy(zero_copy_only=False)
     pixel = ~np.isnan(v)
-    for name, sigma, lo, hi in (("sigma_u", sigma_u, area.u_min, area.u_max),
-                                ("sigma_v", sigma_v, area.v_min, area.v_max)):
-        extent = (hi - lo)[layer]
-        row = _first_true(sigma > extent)
-        if row is not None:
-            raise _row_error(source, table, row, name, key,
-                             f"is {float(sigma[row])!r} mm, larger than layer {layer[row]}'s extent "
-                             f"({float(extent[row])!r} mm): not a measurement error")
+    extent_u = (area.u_max - area.u_min)[layer]
+    extent_v = (area.v_max - area.v_min)[layer]
     tol_u = AREA_TOLERANCE_SIGMAS * sigma_u + AREA_MARGIN_MM
     tol_v = AREA_TOLERANCE_SIGMAS * np.where(pixel, sigma_v, 0.0) + AREA_MARGIN_MM
+    beyond = f"by more than {AREA_TOLERANCE_SIGMAS:g} σ + {AREA_MARGIN_MM:g} mm"
+
+    def too_large(sigma, extent):
+        return lambda r: (f"is {float(sigma[r])!r} mm, larger than layer {layer[r]}'s extent "
+                          f"({float(extent[r])!r} mm): not a measurement error")
+
+    def outside(values, lo, hi):
+        return lambda r: (f"is {float(values[r])!r} mm, outside layer {layer[r]}'s active area "
+                          f"[{float(lo[layer[r]])!r}, {float(hi[layer[r]])!r}] mm {beyond}")
+
     with np.errstate(invalid="ignore"):
         r_hole = area.hole_radius[layer]
-        inside_round = pixel & (r_hole > 0) & (np.hypot(u, v) < r_hole - np.maximum(tol_u, tol_v))
-        inside_square = (pixel & (np.abs(u) < area.hole_half_u[layer] - tol_u)
-                         & (np.abs(v) < area.hole_half_v[layer] - tol_v))
-        checks = (
-            ("u", (u < area.u_min[layer] - tol_u) | (u > area.u_max[layer] + tol_u)),
-            ("v", pixel & ((v < area.v_min[layer] - tol_v) | (v > area.v_max[layer] + tol_v))),
-            ("u", inside_round | inside_square),
+        in_hole = (pixel & (r_hole > 0) & (np.hypot(u, v) < r_hole - np.maximum(tol_u, tol_v))) | (
+            pixel & (np.abs(u) < area.hole_half_u[layer] - tol_u) & (np.abs(v) < area.hole_half_v[layer] - tol_v))
+        checks = (  # (column, bad rows, problem of a row); the first bad row of all is reported
+            ("sigma_u", sigma_u > extent_u, too_large(sigma_u, extent_u)),
+            ("sigma_v", sigma_v > extent_v, too_large(sigma_v, extent_v)),
+            ("u", (u < area.u_min[layer] - tol_u) | (u > area.u_max[layer] + tol_u),
+             outside(u, area.u_min, area.u_max)),
+            ("v", pixel & ((v < area.v_min[layer] - tol_v) | (v > area.v_max[layer] + tol_v)),
+             outside(v, area.v_min, area.v_max)),
+            ("u", in_hole, lambda r: (f"is {float(u[r])!r} mm with v = {float(v[r])!r} mm: inside layer "
+                                      f"{layer[r]}'s beam hole {beyond}")),
         )
-    rows = [(_first_true(bad), name, k) for k, (name, bad) in enumerate(checks)]
-    found = [r for r in rows if r[0] is not None]
-    if not found:
-        return
-    row, name, k = min(found)
-    lay = int(layer[row])
-    value = float((u if name == "u" else v)[row])
-    if k == 2:
-        problem = (f"is {value!r} mm with v = {float(v[row])!r} mm: inside layer {lay}'s beam hole "
-                   f"by more than {AREA_TOLERANCE_SIGMAS:g} σ + {AREA_MARGIN_MM:g} mm")
-    else:
-        lo, hi = (area.u_min, area.u_max) if name == "u" else (area.v_min, area.v_max)
-        problem = (f"is {value!r} mm, outside layer {lay}'s active area "
-                   f"[{float(lo[lay])!r}, {float(hi[lay])!r}] mm by more than {AREA_TOLERANCE_SIGMAS:g} σ "
-                   f"+ {AREA_MARGIN_MM:g} mm")
-    raise _row_error(source, table, row, name, key, problem)
+    found = [(row, k) for k, (_, bad, _) in enumerate(checks) if (row := _first_true(bad)) is not None]
+    if found:
+        row, k = min(found)
+        name, _, problem = checks[k]
+        raise _row_error(source, table, row, name, key, problem(row))
 
 
 def pair_keys(
