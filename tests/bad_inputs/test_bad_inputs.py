@@ -65,23 +65,31 @@ def test_streamed_and_in_memory_readers_agree(case, tmp_path, capsys):
     assert capsys.readouterr().err == f"pkf: error: {in_memory.value}\n"
 
 
-def test_readers_agree_on_the_first_bad_row_across_batches(tmp_path, monkeypatch, capsys):
-    """Issue 13: two defects of different checks in different record batches of the streamed
-    scan (the later check's in the earlier batch): both readers name the earlier row."""
+@pytest.mark.parametrize("case, late_column, late_value", [
+    ("hit_outside_area", "sigma_u", 1e4),  # u = 1e5 mm at row 7; an error larger than any layer
+    ("unknown_layer", "u", float("nan")),  # layer 99 at row 11; a value rule of the table
+    ("duplicate_hit", "event_id", 0),  # a duplicate at row 41; rows no longer sorted
+    ("nan_value", "layer", 99),  # NaN at row 17; a check against the geometry
+])
+def test_readers_agree_on_the_first_bad_row_across_batches(tmp_path, monkeypatch, capsys, case, late_column,
+                                                            late_value):
+    """Issue 13: two defects found by different checks, the later row in a later record batch
+    of the streamed scan: both readers name the earlier row (the first bad row over all checks)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     import pkf.io.stream
 
-    dataset = _copy("hit_outside_area", tmp_path)  # u = 1e5 mm at row 7
+    dataset = _copy(case, tmp_path)
     hits = pq.read_table(dataset / "hits.parquet")
-    sigma_u = hits.column("sigma_u").to_numpy().copy()
-    sigma_u[300] = 1e4  # larger than any layer, in a later batch
-    hits = hits.set_column(hits.column_names.index("sigma_u"), "sigma_u", pa.array(sigma_u))
+    i = hits.column_names.index(late_column)
+    values = hits.column(late_column).to_pylist()
+    values[700] = late_value  # in event 2
+    hits = hits.set_column(i, hits.field(i), pa.array(values, hits.field(i).type))
     pq.write_table(hits, dataset / "hits.parquet")
     monkeypatch.setattr(pkf.io.stream, "BATCH_ROWS", 100)
     with pytest.raises(InputError) as in_memory:
         load_dataset(dataset)
-    assert "column 'u': row 7 (" in str(in_memory.value)
+    assert f"column {CASES[case]['column']!r}: row {CASES[case]['row']} (" in str(in_memory.value)
     assert main(["reconstruct", str(dataset), "--out", str(tmp_path / "run"), "--workers", "1"]) == 2
     assert capsys.readouterr().err == f"pkf: error: {in_memory.value}\n"

@@ -20,7 +20,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,7 +122,28 @@ def _describe_row(table: pa.Table, row: int, key: Sequence[str]) -> str:
 
 def _row_error(source: Source, table: pa.Table, row: int, column: str, key: Sequence[str], problem: str) -> InputError:
     file, local = _locate(source, row)
-    return InputError(f"{file}: column {column!r}: row {local}{_describe_row(table, row, key)} {problem}")
+    error = InputError(f"{file}: column {column!r}: row {local}{_describe_row(table, row, key)} {problem}")
+    error.table_row = row  # for _raise_first
+    return error
+
+
+def _raise_first(checks: Sequence[Callable[[], None]]) -> None:
+    """Run every check and raise the InputError of the earliest table row among those that
+    failed (ties: the earlier check; an error without a row comes first).
+
+    So a table checked in one piece and the same table checked batch by batch (the streamed
+    scan) name the same first bad row, whichever checks the defects break.
+    """
+    first: tuple[int, InputError] | None = None
+    for check in checks:
+        try:
+            check()
+        except InputError as error:
+            row = getattr(error, "table_row", -1)
+            if first is None or row < first[0]:
+                first = (row, error)
+    if first is not None:
+        raise first[1]
 
 
 def _first_true(mask: pa.Array | pa.ChunkedArray | np.ndarray) -> int | None:
@@ -298,7 +319,10 @@ def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str
     return convert_to_schema(raw, schema, shown, key)
 
 
-def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> tuple[pa.Table, TableSource]:
+def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str,
+                      check: Callable[[pa.Table, Source], None] | None = None) -> tuple[pa.Table, TableSource]:
+    """Read, convert and validate a table; ``check(table, source)`` is an extra check whose
+    problems compete with the value rules for the first bad row."""
     spec = spec_for(schema)
     key = spec.unique_key if spec is not None else tuple(n for n in ("event_id", "hit_id") if n in schema.names)
     location = find_table(path, name)
@@ -319,7 +343,8 @@ def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> 
         table = tables[0]
     else:
         table = pa.concat_tables(tables)
-    _validate_values(table, schema, spec, source)
+    extra = [lambda: check(table, source)] if check is not None else []
+    _validate_values(table, schema, spec, source, extra)
     return table, source
 
 
@@ -328,8 +353,10 @@ def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> 
 
 def _key_codes(column: pa.ChunkedArray) -> np.ndarray:
     """int64 codes with the same equality as the column's values (strings → dictionary codes)."""
-    if pa.types.is_integer(column.type) or pa.types.is_boolean(column.type):
-        return column.to_numpy().astype(np.int64, copy=False)
+    if pa.types.is_boolean(column.type):
+        return pc.fill_null(column, False).to_numpy().astype(np.int64)
+    if pa.types.is_integer(column.type):
+        return pc.fill_null(column, 0).to_numpy().astype(np.int64, copy=False)  # a null is reported as null
     return pc.dictionary_encode(column.combine_chunks()).indices.to_numpy().astype(np.int64, copy=False)
 
 
@@ -380,97 +407,95 @@ def _range_text(lowest: float | None, highest: float | None) -> str:
     return f"in [{lowest!r}, {highest!r}]"
 
 
-def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None, source: TableSource) -> None:
+def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None, source: TableSource,
+                     extra: Sequence[Callable[[], None]] = ()) -> None:
+    """Every value rule of the table (and the ``extra`` checks, e.g. hits against the
+    geometry's layers); raises the InputError of the first bad row over all of them."""
     key = _default_key(table, spec)
     if table.num_rows == 0:
         if spec is not None and not spec.allow_empty:
             raise InputError(f"{source.path}: table is empty (no rows)")
         return
+    checks: list[Callable[[], None]] = []
+
+    def check(mask_of, column: str, problem_of) -> None:
+        """Add a check: rows where ``mask_of()`` is true are bad, ``problem_of(row)`` says why."""
+        def run():
+            row = _first_true(mask_of())
+            if row is not None:
+                raise _row_error(source, table, row, column, key, problem_of(row))
+        checks.append(run)
+
+    def value(name: str, row: int) -> str:
+        return _format_value(table.column(name)[row].as_py())
 
     for fld in schema:
         if not fld.nullable and table.column(fld.name).null_count:
-            row = _first_true(pc.is_null(table.column(fld.name)))
-            raise _row_error(source, table, row, fld.name, key, "is null")
-
+            check(lambda c=fld.name: pc.is_null(table.column(c)), fld.name, lambda row: "is null")
     if spec is not None:
         for name in spec.finite:
-            col = table.column(name)
-            row = _first_true(pc.invert(pc.is_finite(col)))
-            if row is not None:
-                raise _row_error(source, table, row, name, key, f"is {_format_value(col[row].as_py())}")
+            check(lambda c=name: pc.invert(pc.is_finite(table.column(c))), name,
+                  lambda row, c=name: f"is {value(c, row)}")
         for name in spec.positive:
-            col = table.column(name)
-            row = _first_true(pc.less_equal(col, 0))
-            if row is not None:
-                value = _format_value(col[row].as_py())
-                raise _row_error(source, table, row, name, key, f"is {value}, must be > 0")
+            check(lambda c=name: pc.less_equal(table.column(c), 0), name,
+                  lambda row, c=name: f"is {value(c, row)}, must be > 0")
         for name in spec.non_negative:
-            col = table.column(name)
-            row = _first_true(pc.less(col, 0))
-            if row is not None:
-                value = _format_value(col[row].as_py())
-                raise _row_error(source, table, row, name, key, f"is {value}, must be >= 0")
+            check(lambda c=name: pc.less(table.column(c), 0), name,
+                  lambda row, c=name: f"is {value(c, row)}, must be >= 0")
         for name, lowest, highest, why in spec.ranges:
-            row = _first_true(_outside(table.column(name), lowest, highest))
-            if row is not None:
-                value = _format_value(table.column(name)[row].as_py())
-                raise _row_error(source, table, row, name, key,
-                                 f"is {value}, must be {_range_text(lowest, highest)} ({why})")
+            check(lambda c=name, lo=lowest, hi=highest: _outside(table.column(c), lo, hi), name,
+                  lambda row, c=name, lo=lowest, hi=highest, why=why:
+                  f"is {value(c, row)}, must be {_range_text(lo, hi)} ({why})")
         for group, why in spec.nonzero_vectors:
-            parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
-            length = np.sqrt(np.sum([x * x for x in parts], axis=0))  # 0 also where the squares underflow
-            row = _first_true(length == 0)
-            if row is not None:
-                values = ", ".join(_format_value(float(x[row])) for x in parts)
-                raise _row_error(source, table, row, group[0], key,
-                                 f"is part of ({', '.join(group)}) = ({values}), of length 0: must be > 0 ({why})")
+            def zero_length(group=group):
+                parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
+                return np.sqrt(np.sum([x * x for x in parts], axis=0)) == 0  # also where the squares underflow
+
+            check(zero_length, group[0], lambda row, group=group, why=why:
+                  f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "
+                  f"of length 0: must be > 0 ({why})")
         for group in spec.null_together:
-            nulls = [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
-            any_null = np.logical_or.reduce(nulls)
-            all_null = np.logical_and.reduce(nulls)
-            row = _first_true(any_null & ~all_null)
-            if row is not None:
-                null_cols = [c for c, m in zip(group, nulls) if m[row]]
+            def nulls_of(group=group):
+                return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
+
+            def partly_null(group=group):
+                nulls = nulls_of(group)
+                return np.logical_or.reduce(nulls) & ~np.logical_and.reduce(nulls)
+
+            def not_together(row, group=group):
+                nulls = nulls_of(group)
                 set_cols = [c for c, m in zip(group, nulls) if not m[row]]
-                raise _row_error(
-                    source,
-                    table,
-                    row,
-                    null_cols[0],
-                    key,
-                    f"is null but {', '.join(repr(c) for c in set_cols)} is not "
-                    f"({', '.join(group)} must be null together)",
-                )
+                return (f"is null but {', '.join(repr(c) for c in set_cols)} is not "
+                        f"({', '.join(group)} must be null together)")
+
+            checks.append(lambda group=group, partly_null=partly_null, not_together=not_together:
+                          _raise_partly_null(source, table, key, group, partly_null(), not_together))
 
     if "event_id" in table.column_names:
-        events = table.column("event_id").to_numpy()
-        bad = np.flatnonzero(events[1:] < events[:-1])
-        if bad.size:
-            row = int(bad[0]) + 1
-            raise _row_error(
-                source,
-                table,
-                row,
-                "event_id",
-                key,
-                f"comes after event_id={events[row - 1]}: rows must be sorted by event_id",
-            )
+        events = pc.fill_null(table.column("event_id"), 0).to_numpy()  # a null is reported as null
+        check(lambda: np.r_[False, events[1:] < events[:-1]], "event_id",
+              lambda row: f"comes after event_id={events[row - 1]}: rows must be sorted by event_id")
 
     if spec is not None and spec.unique_key:
-        dup = _first_duplicate([_key_codes(table.column(c)) for c in spec.unique_key])
-        if dup is not None:
-            row, earlier = dup
-            file, _ = _locate(source, row)
-            other_file, other_row = _locate(source, earlier)
-            other = f"row {other_row}" if other_file == file else f"{other_file} row {other_row}"
-            raise _row_error(
-                source,
-                table,
-                row,
-                spec.unique_key[-1],
-                key,
-                f"duplicates {other}: ({', '.join(spec.unique_key)}) must be unique",
-            )
+        def duplicates():
+            dup = _first_duplicate([_key_codes(table.column(c)) for c in spec.unique_key])
+            if dup is not None:
+                row, earlier = dup
+                file, _ = _locate(source, row)
+                other_file, other_row = _locate(source, earlier)
+                other = f"row {other_row}" if other_file == file else f"{other_file} row {other_row}"
+                raise _row_error(source, table, row, spec.unique_key[-1], key,
+                                 f"duplicates {other}: ({', '.join(spec.unique_key)}) must be unique")
+        checks.append(duplicates)
+    _raise_first(checks + list(extra))
+
+
+def _raise_partly_null(source, table, key, group, partly_null: np.ndarray, problem_of) -> None:
+    row = _first_true(partly_null)
+    if row is not None:
+        nulls = [pc.is_null(table.column(c))[row].as_py() for c in group]
+        column = next(c for c, n in zip(group, nulls) if n)
+        raise _row_error(source, table, row, column, key, problem_of(row))
 
 
 # --------------------------------------------------------------------------- public readers
@@ -563,44 +588,43 @@ def validate_hit_layers(
         raise ValueError("layer_kind values must be 0 (pixel) or 1 (strip)")
     n_layers = layer_z.size
     key = ("event_id", "hit_id")
-    layer = table.column("layer").to_numpy().astype(np.int64)
-    row = _first_true((layer < 0) | (layer >= n_layers))
-    if row is not None:
-        raise _row_error(
-            source,
-            table,
-            row,
-            "layer",
-            key,
-            f"is {layer[row]}, not a layer of the geometry (valid: 0 to {n_layers - 1})",
-        )
-    z = table.column("z").to_numpy()
-    expected = layer_z[layer]
-    row = _first_true(~(np.abs(z - expected) <= z_tolerance))
-    if row is not None:
-        raise _row_error(
-            source,
-            table,
-            row,
-            "z",
-            key,
-            f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected[row])!r} mm",
-        )
-    strip = layer_kind[layer] == 1
-    v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
-    sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
-    bad_v = np.where(strip, ~v_null, v_null)
-    bad_sv = np.where(strip, ~sv_null, sv_null)
-    row = _first_true(bad_v | bad_sv)
-    if row is not None:
-        column = "v" if bad_v[row] else "sigma_v"
-        if strip[row]:
-            problem = f"is not null but layer {layer[row]} is a strip layer (v, sigma_v must be null)"
-        else:
-            problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
-        raise _row_error(source, table, row, column, key, problem)
+    layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)  # a null is reported as null
+    valid = (layer >= 0) & (layer < n_layers)
+    index = np.where(valid, layer, 0)  # rows of invalid layers are reported by the first check only
+
+    def layers():
+        row = _first_true(~valid)
+        if row is not None:
+            raise _row_error(source, table, row, "layer", key,
+                             f"is {layer[row]}, not a layer of the geometry (valid: 0 to {n_layers - 1})")
+
+    def z_values():
+        z = table.column("z").to_numpy()
+        expected = layer_z[index]
+        row = _first_true(valid & ~(np.abs(z - expected) <= z_tolerance))
+        if row is not None:
+            raise _row_error(source, table, row, "z", key,
+                             f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected[row])!r} mm")
+
+    def measured_coordinates():
+        strip = layer_kind[index] == 1
+        v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
+        sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
+        bad_v = valid & np.where(strip, ~v_null, v_null)
+        bad_sv = valid & np.where(strip, ~sv_null, sv_null)
+        row = _first_true(bad_v | bad_sv)
+        if row is not None:
+            column = "v" if bad_v[row] else "sigma_v"
+            if strip[row]:
+                problem = f"is not null but layer {layer[row]} is a strip layer (v, sigma_v must be null)"
+            else:
+                problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
+            raise _row_error(source, table, row, column, key, problem)
+
+    checks = [layers, z_values, measured_coordinates]
     if area is not None:
-        validate_hit_area(table, area, source=source)
+        checks.append(lambda: validate_hit_area(table, area, source=source))
+    _raise_first(checks)
 
 
 def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hits") -> None:
@@ -618,7 +642,9 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
         InputError: one line naming the file, the column and the first bad row.
     """
     key = ("event_id", "hit_id", "layer")
-    layer = table.column("layer").to_numpy().astype(np.int64)
+    layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)
+    valid = (layer >= 0) & (layer < area.u_min.size)  # other layers are reported by validate_hit_layers
+    layer = np.where(valid, layer, 0)
     u = table.column("u").to_numpy()
     sigma_u = table.column("sigma_u").to_numpy()
     v = table.column("v").to_numpy(zero_copy_only=False)  # NaN where null (strips)
@@ -652,7 +678,7 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
             ("u", in_hole, lambda r: (f"is {float(u[r])!r} mm with v = {float(v[r])!r} mm: inside layer "
                                       f"{layer[r]}'s beam hole {beyond}")),
         )
-    found = [(row, k) for k, (_, bad, _) in enumerate(checks) if (row := _first_true(bad)) is not None]
+    found = [(row, k) for k, (_, bad, _) in enumerate(checks) if (row := _first_true(valid & bad)) is not None]
     if found:
         row, k = min(found)
         name, _, problem = checks[k]
@@ -875,7 +901,13 @@ def open_dataset(
         raise InputError(f"{shown}: not a directory (a dataset is a directory with meta.json and hits)")
     meta = read_meta(path)
     truth = find_truth_tables(path)
-    hits, hits_src = _read_with_source(path, HITS, "hits")
+    if (layer_z is None) != (layer_kind is None):
+        raise ValueError("give both layer_z and layer_kind, or neither")
+    check_layers = None
+    if layer_z is not None:
+        def check_layers(table, source):
+            validate_hit_layers(table, layer_z, layer_kind, source=source, area=area)
+    hits, hits_src = _read_with_source(path, HITS, "hits", check_layers)
     sources = {"hits": hits_src}
     tables: dict[str, pa.Table | None] = {}
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
@@ -883,9 +915,5 @@ def open_dataset(
             tables[name] = None
             continue
         tables[name], sources[name] = _read_with_source(path, schema, name)
-    if (layer_z is None) != (layer_kind is None):
-        raise ValueError("give both layer_z and layer_kind, or neither")
-    if layer_z is not None:
-        validate_hit_layers(hits, layer_z, layer_kind, source=hits_src, area=area)
     validate_consistency(hits, tables["particles"], tables["mc_hits"], sources=sources)
     return Dataset(path, meta, hits, tables["particles"], tables["mc_hits"], sources)
