@@ -144,3 +144,15 @@ def test_pair_keys_with_negative_ids():
     ka, kb = pair_keys(ev_a, id_a, ev_b, id_b)
     assert np.isin(ka, kb).tolist() == [False, True, True, True, False]
     assert np.unique(ka).size == ka.size
+
+
+def test_hit_truth_without_momentum(tmp_path):
+    """q/p = 0 (infinite momentum) in mc_hits gave p_true = inf in the pulls."""
+    from pkf.io import MC_HITS
+
+    mc = make_tables()["mc_hits"]
+    qop = mc.column("qop").to_numpy(zero_copy_only=False).copy()
+    qop[5] = 0.0
+    write_dataset(tmp_path, {"mc_hits": mc.set_column(8, mc.field(8), pa.array(qop, from_pandas=True))})
+    raises_input_error(lambda: read_table(tmp_path, MC_HITS, name="mc_hits"),
+                       "mc_hits.parquet: column 'qop': row 5 (event_id=0, hit_id=5) is 0.0, must not be 0")

@@ -4,12 +4,16 @@ A table ``NAME`` of a dataset (or run) directory ``DIR`` is either one Parquet f
 ``DIR/NAME.parquet`` or a directory ``DIR/NAME/`` of Parquet files with the same
 schema (DESIGN §6). The reader checks, before any work is done (DESIGN §13):
 missing/extra columns, dtypes, nulls in non-nullable columns, NaN/inf in measured
-values, non-positive errors, sorting by ``event_id``, duplicate ids, empty hit
-tables, and truncated or non-Parquet files. :func:`validate_hit_layers` checks hits
-against a geometry and :func:`validate_consistency` checks the MC truth against the
-hits. Every message is one line naming the file, the column and the first bad row,
-e.g. ``ds/hits.parquet: column 'u': row 17 (event_id=3, hit_id=5) is NaN``; row
-numbers are 0-based within the named file.
+values, errors below 1 nm, particles without momentum or with ids the MC matching
+cannot key, sorting by ``event_id``, duplicate ids, empty hit tables, and truncated or
+non-Parquet files. :func:`validate_hit_layers` checks hits against a geometry (layers,
+z, and with a :class:`LayerArea` errors and positions against the layers' active
+areas), :func:`find_truth_tables` that MC truth is both tables or neither, and
+:func:`validate_consistency` the MC truth against the hits. Every message is one line
+naming the file, the column and the first bad row over all checks of the table (so a
+table read whole and the same table scanned batch by batch say the same), e.g.
+``ds/hits.parquet: column 'u': row 17 (event_id=3, hit_id=5) is NaN``; row numbers are
+0-based within the named file.
 
 All checks are vectorised (numpy / pyarrow.compute): tables of 10^7 rows are fine.
 """
@@ -451,9 +455,12 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                 parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
                 return np.sqrt(np.sum([x * x for x in parts], axis=0)) == 0  # also where the squares underflow
 
-            check(zero_length, group[0], lambda row, group=group, why=why:
-                  f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "
-                  f"of length 0: must be > 0 ({why})")
+            if len(group) == 1:
+                check(zero_length, group[0], lambda row, c=group[0], why=why: f"is {value(c, row)}, must not be 0 ({why})")
+            else:
+                check(zero_length, group[0], lambda row, group=group, why=why:
+                      f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "
+                      f"of length 0: must be > 0 ({why})")
         for group in spec.null_together:
             def nulls_of(group=group):
                 return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]

@@ -281,6 +281,8 @@ TABLE_SPECS: dict[str, TableSpec] = {
         finite=("x", "y", "z", "tx", "ty", "qop"),
         non_negative=("particle_id",),
         null_together=(("tx", "ty", "qop"),),
+        # a particle's hit has a finite momentum: p_true = 1/|qop| in the pulls
+        nonzero_vectors=((("qop",), "the true q/p of a particle's hit; p = 1/|qop|"),),
     ),
     "chi2": TableSpec("chi2", CHI2, unique_key=("event_id", "track_id", "fitter")),
     "candidates": TableSpec("candidates", CANDIDATES, unique_key=("event_id", "track_id", "hit_id")),
