@@ -456,7 +456,8 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                 return np.sqrt(np.sum([x * x for x in parts], axis=0)) == 0  # also where the squares underflow
 
             if len(group) == 1:
-                check(zero_length, group[0], lambda row, c=group[0], why=why: f"is {value(c, row)}, must not be 0 ({why})")
+                check(zero_length, group[0],
+                      lambda row, c=group[0], why=why: f"is {value(c, row)}, must not be 0 ({why})")
             else:
                 check(zero_length, group[0], lambda row, group=group, why=why:
                       f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "

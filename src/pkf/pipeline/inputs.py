@@ -9,7 +9,15 @@ import numpy as np
 import pyarrow as pa
 
 from pkf.errors import InputError
-from pkf.geometry.detector import BUILTIN_GEOMETRIES, KIND_PIXEL, SIDE_LEFT, SIDE_RIGHT, Geometry, load_geometry, parse_geometry
+from pkf.geometry.detector import (
+    BUILTIN_GEOMETRIES,
+    KIND_PIXEL,
+    SIDE_LEFT,
+    SIDE_RIGHT,
+    Geometry,
+    load_geometry,
+    parse_geometry,
+)
 from pkf.io.reader import Dataset, LayerArea, open_dataset, pair_keys, read_meta
 from pkf.io.schemas import PARTICLE_ID_LIMIT
 
