@@ -29,18 +29,23 @@ def _base(tmp: Path) -> Path:
     return out
 
 
-def _write(case: str, base: Path, tables: dict, params: dict | None = None) -> Path:
-    """Case directory with meta.json of the base and the given tables (name → Table, bytes or dir)."""
+def _write(case: str, base: Path, tables: dict, params: dict | None = None, geometry: dict | None = None) -> Path:
+    """Case directory with meta.json of the base and the given tables (name → Table, bytes or dir);
+    ``geometry`` replaces meta.json's geometry record."""
     d = HERE / case
     if d.exists():
         shutil.rmtree(d)
     d.mkdir()
     meta = json.loads((base / "meta.json").read_text())
     meta["geometry"].pop("file", None)  # the built-in lhcb-like geometry, by name and hash
+    if geometry is not None:
+        meta["geometry"] = geometry
     (d / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
     for name, value in tables.items():
         path = d / name
-        if isinstance(value, bytes):
+        if isinstance(value, str):
+            path.write_text(value)
+        elif isinstance(value, bytes):
             path.write_bytes(value)
         elif isinstance(value, list):  # a table directory of several files
             path.mkdir()
@@ -71,8 +76,8 @@ def main() -> None:
         n = hits.num_rows
         cases = {}
 
-        def add(case, tables, file, column, row, args=(), params=None):
-            _write(case, base, tables, params)
+        def add(case, tables, file, column, row, args=(), params=None, geometry=None):
+            _write(case, base, tables, params, geometry)
             cases[case] = {"file": file, "column": column, "row": row, "args": list(args)}
 
         add("missing_column", {"hits.parquet": hits.drop_columns(["sigma_u"])}, "hits.parquet", "sigma_u", None)
@@ -117,7 +122,74 @@ def main() -> None:
         params["geometry"] = {"name": "telescope", "hash": load_geometry("telescope").content_hash}
         add("params_other_geometry", {"hits.parquet": hits}, "params.json", None, None,
             args=["--params", "{case}/params.json"], params=params)
+        add_issue_13_cases(add, hits, mc_hits, particles, params)
         (HERE / "cases.json").write_text(json.dumps(cases, indent=1, sort_keys=True) + "\n")
+
+
+def add_issue_13_cases(add, hits: pa.Table, mc_hits: pa.Table, particles: pa.Table, params: dict) -> None:
+    """Cases of issue 13: values out of their physical range, incomplete MC truth, broken
+    geometry and parameter files."""
+    from pkf.geometry import load_geometry
+
+    layer = hits.column("layer").to_numpy()
+    v_null = pa.compute.is_null(hits.column("v")).to_numpy(zero_copy_only=False)
+    velo_row = int(np.flatnonzero((layer < 52) & ~v_null)[7])
+    strip_row = int(np.flatnonzero(v_null)[3])
+    mc = {"mc_hits.parquet": mc_hits, "particles.parquet": particles}
+    # measurement errors out of range (case 4): 1e-300 mm overflowed 1/σ² in the pattern
+    add("sigma_too_small", {"hits.parquet": _set(hits, "sigma_u", 19, 1e-300)}, "hits.parquet", "sigma_u", 19)
+    add("sigma_larger_than_layer", {"hits.parquet": _set(hits, "sigma_v", velo_row, 500.0)},
+        "hits.parquet", "sigma_v", velo_row)
+    # hits far outside their layer's active area (case 13)
+    add("hit_outside_area", {"hits.parquet": _set(hits, "u", velo_row, 1e5)}, "hits.parquet", "u", velo_row)
+    add("hit_at_1e300", {"hits.parquet": _set(hits, "u", strip_row, 1e300)}, "hits.parquet", "u", strip_row)
+    in_hole = _set(_set(hits, "u", velo_row, 0.5), "v", velo_row, -0.5)
+    add("hit_in_beam_hole", {"hits.parquet": in_hole}, "hits.parquet", "u", velo_row)
+    # MC truth: one table without the other (case 5), hits without truth (case 15)
+    add("mc_hits_without_particles", {"hits.parquet": hits, "mc_hits.parquet": mc_hits},
+        "particles.parquet", None, None)
+    add("particles_without_mc_hits", {"hits.parquet": hits, "particles.parquet": particles},
+        "mc_hits.parquet", None, None)
+    hit_of_mc = {(e, h): i for i, (e, h) in enumerate(zip(hits.column("event_id").to_pylist(),
+                                                          hits.column("hit_id").to_pylist()))}
+    dropped = mc_hits.slice(0, 100).to_pylist()
+    first_without = min(hit_of_mc[(r["event_id"], r["hit_id"])] for r in dropped)
+    add("hits_without_truth", {"hits.parquet": hits, "mc_hits.parquet": mc_hits.slice(100),
+                               "particles.parquet": particles}, "hits.parquet", "hit_id", first_without)
+    # a particle without momentum (case 14)
+    zero_p = _set(_set(_set(particles, "px", 3, 0.0), "py", 3, 0.0), "pz", 3, 0.0)
+    add("zero_momentum", {"hits.parquet": hits, "mc_hits.parquet": mc_hits, "particles.parquet": zero_p},
+        "particles.parquet", "px", 3)
+    # ids the MC matching cannot key (case 10's encoding): particle_id ≥ 2^24
+    big = 1 << 24
+    pid = particles.column("particle_id")[2].as_py()
+    big_id = _set(particles, "particle_id", 2, big)
+    mc_pid = [big if p == pid and e == particles.column("event_id")[2].as_py() else p
+              for p, e in zip(mc_hits.column("particle_id").to_pylist(), mc_hits.column("event_id").to_pylist())]
+    big_mc = mc_hits.set_column(2, "particle_id", pa.array(mc_pid, pa.int64()))
+    add("particle_id_too_large", {"hits.parquet": hits, "mc_hits.parquet": big_mc, "particles.parquet": big_id},
+        "particles.parquet", "particle_id", 2)
+    # geometry files (cases 6, 16)
+    lhcb = load_geometry("lhcb-like")
+    custom = lhcb.text.replace('name = "lhcb-like"', 'name = "lhcb-scifi100"')
+    add("geometry_toml_missing", {"hits.parquet": hits},
+        "geometry.toml", None, None, geometry={"name": "lhcb-scifi100", "file": "geometry.toml"})
+    add("geometry_string_number", {"hits.parquet": hits, "geometry.toml": custom.replace("sigma = 0.055", 'sigma = "fine"')},
+        "geometry.toml", None, None, geometry={"name": "lhcb-scifi100", "file": "geometry.toml"})
+    # parameter files with bad coefficients (case 11); no UT→SciFi table: the slots are checked first
+    def params_with(change):
+        bad = json.loads(json.dumps(params))
+        bad["geometry"] = {"name": "lhcb-like", "hash": lhcb.content_hash}
+        change(bad)
+        return bad
+
+    args = ["--params", "{case}/params.json"]
+    add("params_nan_coefficient", {"hits.parquet": hits}, "params.json", None, None, args=args,
+        params=params_with(lambda p: p["slots"][60]["extrapolation"].__setitem__(2, float("nan"))))
+    add("params_missing_slots", {"hits.parquet": hits}, "params.json", None, None, args=args,
+        params=params_with(lambda p: p.__setitem__("slots", p["slots"][:10])))
+    add("params_short_coefficients", {"hits.parquet": hits}, "params.json", None, None, args=args,
+        params=params_with(lambda p: p["slots"][60].__setitem__("extrapolation", p["slots"][60]["extrapolation"][:5])))
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ import pytest
 
 from pkf.cli import main
 from pkf.errors import InputError
-from pkf.io.reader import open_dataset
+from pkf.pipeline.inputs import load_dataset
 
 HERE = Path(__file__).resolve().parent
 CASES = json.loads((HERE / "cases.json").read_text())
@@ -23,7 +23,13 @@ def _copy(case: str, tmp_path: Path) -> Path:
 def test_corpus_covers_design_13():
     needed = {"missing_column", "extra_column", "wrong_dtype", "nan_value", "inf_value", "unknown_layer",
               "duplicate_hit", "unsorted_events", "empty_dataset", "truncated_file", "not_parquet",
-              "params_other_geometry"}
+              "params_other_geometry",
+              # issue 13
+              "sigma_too_small", "sigma_larger_than_layer", "hit_outside_area", "hit_at_1e300",
+              "hit_in_beam_hole", "mc_hits_without_particles", "particles_without_mc_hits",
+              "hits_without_truth", "zero_momentum", "particle_id_too_large", "geometry_toml_missing",
+              "geometry_string_number", "params_nan_coefficient", "params_missing_slots",
+              "params_short_coefficients"}
     assert needed <= set(CASES)
     assert all((HERE / case).is_dir() for case in CASES)
 
@@ -51,12 +57,39 @@ def test_reconstruct_rejects_bad_input(case, tmp_path, capsys):
 @pytest.mark.parametrize("case", sorted(c for c in CASES if not CASES[c]["args"]))
 def test_streamed_and_in_memory_readers_agree(case, tmp_path, capsys):
     """The streaming validation of `pkf reconstruct` says exactly what the in-memory reader
-    (used by `pkf tune` and reports) says."""
-    from pkf.geometry import load_geometry
+    (used by `pkf tune` and reports, with the dataset's geometry and its layers' areas) says."""
+    dataset = _copy(case, tmp_path)
+    with pytest.raises(InputError) as in_memory:
+        load_dataset(dataset)
+    assert main(["reconstruct", str(dataset), "--out", str(tmp_path / "run"), "--workers", "1"]) == 2
+    assert capsys.readouterr().err == f"pkf: error: {in_memory.value}\n"
+
+
+@pytest.mark.parametrize("case, late_column, late_value", [
+    ("hit_outside_area", "sigma_u", 1e4),  # u = 1e5 mm at row 7; an error larger than any layer
+    ("unknown_layer", "u", float("nan")),  # layer 99 at row 11; a value rule of the table
+    ("duplicate_hit", "event_id", 0),  # a duplicate at row 41; rows no longer sorted
+    ("nan_value", "layer", 99),  # NaN at row 17; a check against the geometry
+])
+def test_readers_agree_on_the_first_bad_row_across_batches(tmp_path, monkeypatch, capsys, case, late_column,
+                                                            late_value):
+    """Issue 13: two defects found by different checks, the later row in a later record batch
+    of the streamed scan: both readers name the earlier row (the first bad row over all checks)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    import pkf.io.stream
 
     dataset = _copy(case, tmp_path)
-    geometry = load_geometry("lhcb-like")
+    hits = pq.read_table(dataset / "hits.parquet")
+    i = hits.column_names.index(late_column)
+    values = hits.column(late_column).to_pylist()
+    values[700] = late_value  # in event 2
+    hits = hits.set_column(i, hits.field(i), pa.array(values, hits.field(i).type))
+    pq.write_table(hits, dataset / "hits.parquet")
+    monkeypatch.setattr(pkf.io.stream, "BATCH_ROWS", 100)
     with pytest.raises(InputError) as in_memory:
-        open_dataset(dataset, layer_z=geometry.layer_z, layer_kind=geometry.layer_kind)
+        load_dataset(dataset)
+    assert f"column {CASES[case]['column']!r}: row {CASES[case]['row']} (" in str(in_memory.value)
     assert main(["reconstruct", str(dataset), "--out", str(tmp_path / "run"), "--workers", "1"]) == 2
     assert capsys.readouterr().err == f"pkf: error: {in_memory.value}\n"

@@ -76,3 +76,36 @@ def test_bad_geometry_is_one_line_error(change, message):
 def test_unknown_geometry_name():
     with pytest.raises(InputError, match="unknown geometry"):
         load_geometry("atlas")
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (("sigma = 0.055", 'sigma = "fine"'), "layers[1].sigma (layers of subdetector 'ut', z = 2327.5 … 2642.5): "
+                                              "is 'fine', expected a finite number"),
+        (("sigma = 0.055", "sigma = true"), "layers[1].sigma"),
+        (("sigma = 0.055", "sigma = inf"), "layers[1].sigma"),
+        (("stereo_deg = [0.0, 5.0, -5.0, 0.0]", 'stereo_deg = [0.0, "5", -5.0, 0.0]'),
+         "layers[1].stereo_deg (layers of subdetector 'ut'"),
+        (("station = [1, 1, 1, 1,", "station = [1.5, 1, 1, 1,"), "layers[2].station"),
+        (('kind = "strip"', "kind = 1"), "layers[1].kind"),
+        (("half_x = 770.0", "half_x = [770.0]"), "layers[1].half_x"),
+        (("half_x = 770.0", "half_x = 0.0"), "layers[1].half_x must be > 0"),
+        (("b0 = -1.03", 'b0 = "-1.03"'), "field.b0"),
+        (("spacing = 100.0", "spacing = nan"), "field_map.spacing"),
+        (("x_range = [-4000.0, 4000.0]", "x_range = [4000.0]"), "field_map.x_range"),
+        (("half_width = 4000.0", 'half_width = "wide"'), "envelope.half_width"),
+        (('name = "rich1-exit"', "name = 3"), "passive[1].name"),
+        (("z = 1100.0", 'z = "1100"'), "passive[0].z"),
+        (('type = "velo"', "type = 0"), "steps[0].type"),
+        (('name = "lhcb-like"', "name = 1"), ": name: is 1, expected a string"),
+    ],
+)
+def test_geometry_values_of_the_wrong_type(change, message):
+    """Issue 13 case 6: every key has a type, checked on load (was a TypeError for sigma = "fine")."""
+    text = load_geometry("lhcb-like").text
+    assert change[0] in text
+    with pytest.raises(InputError) as err:
+        parse_geometry(text.replace(*change, 1), source="mine.toml")
+    assert str(err.value).startswith("mine.toml: ") and "\n" not in str(err.value)
+    assert message in str(err.value)

@@ -249,8 +249,95 @@ def _expand_sides(value, n: int, source: str) -> list[int]:
     raise InputError(f"{source}: layers.side: unknown value {value!r}")
 
 
+# Value types of every key of a geometry file, checked before any value is used:
+# "number" (int or float, not bool, finite), "int", "string", "numbers" (a non-empty list of
+# numbers), "range" (two numbers, low < high), and "X or Xs" (one value, or one per z value).
+_TOP_TYPES = {"name": "string", "description": "string"}
+_FIELD_TYPES = {"model": "string", "b0": "number", "z1": "number", "z2": "number", "edge_length": "number",
+                "k": "number", "length_scale": "number", "bx": "number", "by": "number", "bz": "number"}
+_FIELD_MAP_TYPES = {"spacing": "number", "x_range": "range", "y_range": "range", "z_range": "range"}
+_ENVELOPE_TYPES = {"half_width": "number", "max_slope": "number", "min_momentum": "number"}
+_LAYER_TYPES = {
+    "subdetector": "string", "kind": "string", "z": "numbers", "stereo_deg": "number or numbers",
+    "station": "int or ints", "sigma": "number", "x_over_x0": "number", "half_x": "number",
+    "half_y": "number", "hole_radius": "number", "hole_half_x": "number", "hole_half_y": "number",
+    "side": "string or strings", "side_overlap": "number", "efficiency": "number", "noise_hits": "number",
+}
+_PASSIVE_TYPES = {"name": "string", "z": "number", "x_over_x0": "number", "half_x": "number", "half_y": "number"}
+_STEP_TYPES_OF_KEYS = {"from": "string", "to": "string", "type": "string"}
+_TABLE_KEYS = {"field": dict, "field_map": dict, "envelope": dict, "layers": list, "passive": list, "steps": list}
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _type_error(value, expected: str) -> str | None:
+    """Why ``value`` is not of the geometry-file type ``expected`` (None if it is)."""
+    single = {"number": _is_number, "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+              "string": lambda v: isinstance(v, str)}
+    if " or " in expected:  # one value, or a list of them (one per z value)
+        one, _ = expected.split(" or ")
+        if isinstance(value, list):
+            bad = [i for i, v in enumerate(value) if not single[one](v)]
+            return None if not bad else f"element {bad[0]} is {value[bad[0]]!r}, expected {_ARTICLE[one]}"
+        return None if single[one](value) else f"is {value!r}, expected {_ARTICLE[one]} or a list of them"
+    if expected == "numbers":
+        if not isinstance(value, list) or not value:
+            return f"is {value!r}, expected a non-empty list of finite numbers"
+        bad = [i for i, v in enumerate(value) if not _is_number(v)]
+        return None if not bad else f"element {bad[0]} is {value[bad[0]]!r}, expected a finite number"
+    if expected == "range":
+        if not (isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value)
+                and value[0] < value[1]):
+            return f"is {value!r}, expected [low, high]: two finite numbers, low < high"
+        return None
+    return None if single[expected](value) else f"is {value!r}, expected {_ARTICLE[expected]}"
+
+
+_ARTICLE = {"number": "a finite number", "int": "an integer", "string": "a string"}
+
+
+def _check_types(table: dict, types: dict, where: str, fail, about: str = "") -> None:
+    """Fail for the first key of ``table`` whose value is not of its type in ``types``."""
+    for key, value in table.items():
+        if key in types:
+            problem = _type_error(value, types[key])
+            if problem:
+                fail(f"{where}{key}{about}: {problem}")
+
+
+def _layer_about(group: dict) -> str:
+    """How messages name the layers of a [[layers]] group: subdetector and z values."""
+    what = [f"subdetector {group['subdetector']!r}"] if isinstance(group.get("subdetector"), str) else []
+    z = group.get("z")
+    if isinstance(z, list) and z and _is_number(z[0]):
+        what.append(f"z = {z[0]!r}" + (f" … {z[-1]!r}" if len(z) > 1 and _is_number(z[-1]) else ""))
+    return f" (layers of {', '.join(what)})" if what else ""
+
+
+def _validate_types(config: dict, fail) -> None:
+    """Fail (one line naming the key, and the layer group) for the first value of the wrong type."""
+    _check_types(config, _TOP_TYPES, "", fail)
+    for key, kind in _TABLE_KEYS.items():
+        if key in config and not isinstance(config[key], kind):
+            shape = "a table [" + key + "]" if kind is dict else "an array of tables [[" + key + "]]"
+            fail(f"{key}: expected {shape}, found {type(config[key]).__name__}")
+    _check_types(config.get("field", {}), _FIELD_TYPES, "field.", fail)
+    _check_types(config.get("field_map", {}), _FIELD_MAP_TYPES, "field_map.", fail)
+    _check_types(config.get("envelope", {}), _ENVELOPE_TYPES, "envelope.", fail)
+    for name, types in (("layers", _LAYER_TYPES), ("passive", _PASSIVE_TYPES), ("steps", _STEP_TYPES_OF_KEYS)):
+        for i, entry in enumerate(config.get(name, [])):
+            if not isinstance(entry, dict):
+                fail(f"{name}[{i}]: expected a table, found {type(entry).__name__}")
+            about = _layer_about(entry) if name == "layers" else ""
+            _check_types(entry, types, f"{name}[{i}].", fail, about)
+
+
 def _validate(config: dict, source: str) -> None:
-    """Raise InputError (one line) for the first thing wrong in a parsed geometry."""
+    """Raise InputError (one line) for the first thing wrong in a parsed geometry:
+    unknown or missing keys, values of the wrong type (every key has one, see
+    ``_LAYER_TYPES`` etc.; numbers must be finite), then values out of range."""
 
     def fail(msg: str):
         raise InputError(f"{source}: {msg}")
@@ -261,6 +348,7 @@ def _validate(config: dict, source: str) -> None:
     for key in ("name", "field", "layers"):
         if key not in config:
             fail(f"missing key {key!r}")
+    _validate_types(config, fail)
     field = config["field"]
     if field.get("model") not in ("dipole", "uniform"):
         fail(f"field.model must be 'dipole' or 'uniform', not {field.get('model')!r}")
@@ -301,6 +389,12 @@ def _validate(config: dict, source: str) -> None:
             fail(f"{where}.efficiency must be in [0, 1]")
         if not group.get("noise_hits", 0.0) >= 0:
             fail(f"{where}.noise_hits must be >= 0")
+        for key in ("half_x", "half_y"):
+            if not group[key] > 0:
+                fail(f"{where}.{key} must be > 0")
+        for key in ("hole_radius", "hole_half_x", "hole_half_y", "side_overlap"):
+            if not group.get(key, 0.0) >= 0:
+                fail(f"{where}.{key} must be >= 0")
     for pi, plane in enumerate(config.get("passive", [])):
         extra = set(plane) - _PASSIVE_KEYS
         if extra:
@@ -308,10 +402,15 @@ def _validate(config: dict, source: str) -> None:
         for key in ("z", "x_over_x0"):
             if key not in plane:
                 fail(f"passive[{pi}]: missing key {key!r}")
+        if not plane["x_over_x0"] >= 0:
+            fail(f"passive[{pi}].x_over_x0 must be >= 0")
     envelope = config.get("envelope", {})
     extra = set(envelope) - {"half_width", "max_slope", "min_momentum"}
     if extra:
         fail(f"envelope: unknown key {sorted(extra)[0]!r}")
+    for key, value in envelope.items():
+        if not value > 0:
+            fail(f"envelope.{key} must be > 0")
     for si, step in enumerate(config.get("steps", [])):
         if set(step) != {"from", "to", "type"}:
             fail(f"steps[{si}]: need exactly the keys 'from', 'to', 'type'")

@@ -4,12 +4,16 @@ A table ``NAME`` of a dataset (or run) directory ``DIR`` is either one Parquet f
 ``DIR/NAME.parquet`` or a directory ``DIR/NAME/`` of Parquet files with the same
 schema (DESIGN §6). The reader checks, before any work is done (DESIGN §13):
 missing/extra columns, dtypes, nulls in non-nullable columns, NaN/inf in measured
-values, non-positive errors, sorting by ``event_id``, duplicate ids, empty hit
-tables, and truncated or non-Parquet files. :func:`validate_hit_layers` checks hits
-against a geometry and :func:`validate_consistency` checks the MC truth against the
-hits. Every message is one line naming the file, the column and the first bad row,
-e.g. ``ds/hits.parquet: column 'u': row 17 (event_id=3, hit_id=5) is NaN``; row
-numbers are 0-based within the named file.
+values, errors below 1 nm, particles without momentum or with ids the MC matching
+cannot key, sorting by ``event_id``, duplicate ids, empty hit tables, and truncated or
+non-Parquet files. :func:`validate_hit_layers` checks hits against a geometry (layers,
+z, and with a :class:`LayerArea` errors and positions against the layers' active
+areas), :func:`find_truth_tables` that MC truth is both tables or neither, and
+:func:`validate_consistency` the MC truth against the hits. Every message is one line
+naming the file, the column and the first bad row over all checks of the table (so a
+table read whole and the same table scanned batch by batch say the same), e.g.
+``ds/hits.parquet: column 'u': row 17 (event_id=3, hit_id=5) is NaN``; row numbers are
+0-based within the named file.
 
 All checks are vectorised (numpy / pyarrow.compute): tables of 10^7 rows are fine.
 """
@@ -20,7 +24,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +45,10 @@ __all__ = [
     "open_dataset",
     "validate_hit_layers",
     "validate_consistency",
+    "validate_hit_area",
+    "find_truth_tables",
+    "pair_keys",
+    "LayerArea",
 ]
 
 _MAGIC = b"PAR1"
@@ -118,7 +126,28 @@ def _describe_row(table: pa.Table, row: int, key: Sequence[str]) -> str:
 
 def _row_error(source: Source, table: pa.Table, row: int, column: str, key: Sequence[str], problem: str) -> InputError:
     file, local = _locate(source, row)
-    return InputError(f"{file}: column {column!r}: row {local}{_describe_row(table, row, key)} {problem}")
+    error = InputError(f"{file}: column {column!r}: row {local}{_describe_row(table, row, key)} {problem}")
+    error.table_row = row  # for _raise_first
+    return error
+
+
+def _raise_first(checks: Sequence[Callable[[], None]]) -> None:
+    """Run every check and raise the InputError of the earliest table row among those that
+    failed (ties: the earlier check; an error without a row comes first).
+
+    So a table checked in one piece and the same table checked batch by batch (the streamed
+    scan) name the same first bad row, whichever checks the defects break.
+    """
+    first: tuple[int, InputError] | None = None
+    for check in checks:
+        try:
+            check()
+        except InputError as error:
+            row = getattr(error, "table_row", -1)
+            if first is None or row < first[0]:
+                first = (row, error)
+    if first is not None:
+        raise first[1]
 
 
 def _first_true(mask: pa.Array | pa.ChunkedArray | np.ndarray) -> int | None:
@@ -294,7 +323,10 @@ def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str
     return convert_to_schema(raw, schema, shown, key)
 
 
-def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> tuple[pa.Table, TableSource]:
+def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str,
+                      check: Callable[[pa.Table, Source], None] | None = None) -> tuple[pa.Table, TableSource]:
+    """Read, convert and validate a table; ``check(table, source)`` is an extra check whose
+    problems compete with the value rules for the first bad row."""
     spec = spec_for(schema)
     key = spec.unique_key if spec is not None else tuple(n for n in ("event_id", "hit_id") if n in schema.names)
     location = find_table(path, name)
@@ -315,7 +347,8 @@ def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> 
         table = tables[0]
     else:
         table = pa.concat_tables(tables)
-    _validate_values(table, schema, spec, source)
+    extra = [lambda: check(table, source)] if check is not None else []
+    _validate_values(table, schema, spec, source, extra)
     return table, source
 
 
@@ -324,8 +357,10 @@ def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str) -> 
 
 def _key_codes(column: pa.ChunkedArray) -> np.ndarray:
     """int64 codes with the same equality as the column's values (strings → dictionary codes)."""
-    if pa.types.is_integer(column.type) or pa.types.is_boolean(column.type):
-        return column.to_numpy().astype(np.int64, copy=False)
+    if pa.types.is_boolean(column.type):
+        return pc.fill_null(column, False).to_numpy().astype(np.int64)
+    if pa.types.is_integer(column.type):
+        return pc.fill_null(column, 0).to_numpy().astype(np.int64, copy=False)  # a null is reported as null
     return pc.dictionary_encode(column.combine_chunks()).indices.to_numpy().astype(np.int64, copy=False)
 
 
@@ -356,83 +391,119 @@ def _first_duplicate(keys: list[np.ndarray]) -> tuple[int, int] | None:
     return int(later[i]), int(earlier[i])
 
 
-def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None, source: TableSource) -> None:
+def _outside(column: pa.ChunkedArray, lowest: float | None, highest: float | None) -> np.ndarray:
+    """Mask of the values below ``lowest`` or above ``highest`` (None: no bound; nulls are inside)."""
+    values = column.to_numpy(zero_copy_only=False)
+    bad = np.zeros(values.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        if lowest is not None:
+            bad |= values < lowest
+        if highest is not None:
+            bad |= values > highest
+    return bad
+
+
+def _range_text(lowest: float | None, highest: float | None) -> str:
+    if highest is None:
+        return f">= {lowest!r}"
+    if lowest is None:
+        return f"<= {highest!r}"
+    return f"in [{lowest!r}, {highest!r}]"
+
+
+def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None, source: TableSource,
+                     extra: Sequence[Callable[[], None]] = ()) -> None:
+    """Every value rule of the table (and the ``extra`` checks, e.g. hits against the
+    geometry's layers); raises the InputError of the first bad row over all of them."""
     key = _default_key(table, spec)
     if table.num_rows == 0:
         if spec is not None and not spec.allow_empty:
             raise InputError(f"{source.path}: table is empty (no rows)")
         return
+    checks: list[Callable[[], None]] = []
+
+    def check(mask_of, column: str, problem_of) -> None:
+        """Add a check: rows where ``mask_of()`` is true are bad, ``problem_of(row)`` says why."""
+        def run():
+            row = _first_true(mask_of())
+            if row is not None:
+                raise _row_error(source, table, row, column, key, problem_of(row))
+        checks.append(run)
+
+    def value(name: str, row: int) -> str:
+        return _format_value(table.column(name)[row].as_py())
 
     for fld in schema:
         if not fld.nullable and table.column(fld.name).null_count:
-            row = _first_true(pc.is_null(table.column(fld.name)))
-            raise _row_error(source, table, row, fld.name, key, "is null")
-
+            check(lambda c=fld.name: pc.is_null(table.column(c)), fld.name, lambda row: "is null")
     if spec is not None:
         for name in spec.finite:
-            col = table.column(name)
-            row = _first_true(pc.invert(pc.is_finite(col)))
-            if row is not None:
-                raise _row_error(source, table, row, name, key, f"is {_format_value(col[row].as_py())}")
+            check(lambda c=name: pc.invert(pc.is_finite(table.column(c))), name,
+                  lambda row, c=name: f"is {value(c, row)}")
         for name in spec.positive:
-            col = table.column(name)
-            row = _first_true(pc.less_equal(col, 0))
-            if row is not None:
-                value = _format_value(col[row].as_py())
-                raise _row_error(source, table, row, name, key, f"is {value}, must be > 0")
+            check(lambda c=name: pc.less_equal(table.column(c), 0), name,
+                  lambda row, c=name: f"is {value(c, row)}, must be > 0")
         for name in spec.non_negative:
-            col = table.column(name)
-            row = _first_true(pc.less(col, 0))
-            if row is not None:
-                value = _format_value(col[row].as_py())
-                raise _row_error(source, table, row, name, key, f"is {value}, must be >= 0")
+            check(lambda c=name: pc.less(table.column(c), 0), name,
+                  lambda row, c=name: f"is {value(c, row)}, must be >= 0")
+        for name, lowest, highest, why in spec.ranges:
+            check(lambda c=name, lo=lowest, hi=highest: _outside(table.column(c), lo, hi), name,
+                  lambda row, c=name, lo=lowest, hi=highest, why=why:
+                  f"is {value(c, row)}, must be {_range_text(lo, hi)} ({why})")
+        for group, why in spec.nonzero_vectors:
+            def zero_length(group=group):
+                parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
+                return np.sqrt(np.sum([x * x for x in parts], axis=0)) == 0  # also where the squares underflow
+
+            if len(group) == 1:
+                check(zero_length, group[0],
+                      lambda row, c=group[0], why=why: f"is {value(c, row)}, must not be 0 ({why})")
+            else:
+                check(zero_length, group[0], lambda row, group=group, why=why:
+                      f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "
+                      f"of length 0: must be > 0 ({why})")
         for group in spec.null_together:
-            nulls = [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
-            any_null = np.logical_or.reduce(nulls)
-            all_null = np.logical_and.reduce(nulls)
-            row = _first_true(any_null & ~all_null)
-            if row is not None:
-                null_cols = [c for c, m in zip(group, nulls) if m[row]]
+            def nulls_of(group=group):
+                return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
+
+            def partly_null(group=group):
+                nulls = nulls_of(group)
+                return np.logical_or.reduce(nulls) & ~np.logical_and.reduce(nulls)
+
+            def not_together(row, group=group):
+                nulls = nulls_of(group)
                 set_cols = [c for c, m in zip(group, nulls) if not m[row]]
-                raise _row_error(
-                    source,
-                    table,
-                    row,
-                    null_cols[0],
-                    key,
-                    f"is null but {', '.join(repr(c) for c in set_cols)} is not "
-                    f"({', '.join(group)} must be null together)",
-                )
+                return (f"is null but {', '.join(repr(c) for c in set_cols)} is not "
+                        f"({', '.join(group)} must be null together)")
+
+            checks.append(lambda group=group, partly_null=partly_null, not_together=not_together:
+                          _raise_partly_null(source, table, key, group, partly_null(), not_together))
 
     if "event_id" in table.column_names:
-        events = table.column("event_id").to_numpy()
-        bad = np.flatnonzero(events[1:] < events[:-1])
-        if bad.size:
-            row = int(bad[0]) + 1
-            raise _row_error(
-                source,
-                table,
-                row,
-                "event_id",
-                key,
-                f"comes after event_id={events[row - 1]}: rows must be sorted by event_id",
-            )
+        events = pc.fill_null(table.column("event_id"), 0).to_numpy()  # a null is reported as null
+        check(lambda: np.r_[False, events[1:] < events[:-1]], "event_id",
+              lambda row: f"comes after event_id={events[row - 1]}: rows must be sorted by event_id")
 
     if spec is not None and spec.unique_key:
-        dup = _first_duplicate([_key_codes(table.column(c)) for c in spec.unique_key])
-        if dup is not None:
-            row, earlier = dup
-            file, _ = _locate(source, row)
-            other_file, other_row = _locate(source, earlier)
-            other = f"row {other_row}" if other_file == file else f"{other_file} row {other_row}"
-            raise _row_error(
-                source,
-                table,
-                row,
-                spec.unique_key[-1],
-                key,
-                f"duplicates {other}: ({', '.join(spec.unique_key)}) must be unique",
-            )
+        def duplicates():
+            dup = _first_duplicate([_key_codes(table.column(c)) for c in spec.unique_key])
+            if dup is not None:
+                row, earlier = dup
+                file, _ = _locate(source, row)
+                other_file, other_row = _locate(source, earlier)
+                other = f"row {other_row}" if other_file == file else f"{other_file} row {other_row}"
+                raise _row_error(source, table, row, spec.unique_key[-1], key,
+                                 f"duplicates {other}: ({', '.join(spec.unique_key)}) must be unique")
+        checks.append(duplicates)
+    _raise_first(checks + list(extra))
+
+
+def _raise_partly_null(source, table, key, group, partly_null: np.ndarray, problem_of) -> None:
+    row = _first_true(partly_null)
+    if row is not None:
+        nulls = [pc.is_null(table.column(c))[row].as_py() for c in group]
+        column = next(c for c, n in zip(group, nulls) if n)
+        raise _row_error(source, table, row, column, key, problem_of(row))
 
 
 # --------------------------------------------------------------------------- public readers
@@ -463,6 +534,34 @@ def read_table(path: str | os.PathLike, schema: pa.Schema, *, name: str) -> pa.T
     return table
 
 
+#: Hits may lie this many of their own σ outside their layer's active area (DESIGN §13) ...
+AREA_TOLERANCE_SIGMAS = 5.0
+#: ... plus this margin [mm], for a producer whose placement of the layers differs from the
+#: nominal geometry by a fraction of a millimetre (real modules are aligned to better).
+AREA_MARGIN_MM = 0.1
+
+
+@dataclass(frozen=True)
+class LayerArea:
+    """Where each layer can measure (per layer, indexed by ``layer``; lengths in mm).
+
+    The measured coordinates of a hit of layer ``k`` on its active area lie in
+    ``[u_min[k], u_max[k]]`` and, for pixel layers, ``[v_min[k], v_max[k]]``: for a strip
+    layer these are the bounds of u = x·cos α + y·sin α over the whole area (the strip's
+    unmeasured coordinate may lie anywhere on it). A pixel hit must also lie outside the
+    beam hole: r ≥ ``hole_radius`` and not (|u| < ``hole_half_u`` and |v| < ``hole_half_v``)
+    (0 where a layer has no such hole; strips: 0, a hole does not exclude any u).
+    """
+
+    u_min: np.ndarray
+    u_max: np.ndarray
+    v_min: np.ndarray
+    v_max: np.ndarray
+    hole_radius: np.ndarray
+    hole_half_u: np.ndarray
+    hole_half_v: np.ndarray
+
+
 def validate_hit_layers(
     table: pa.Table,
     layer_z: Sequence[float] | np.ndarray,
@@ -470,6 +569,7 @@ def validate_hit_layers(
     *,
     source: Source = "hits",
     z_tolerance: float = 1e-6,
+    area: LayerArea | None = None,
 ) -> None:
     """Check hits against a geometry's layers.
 
@@ -479,10 +579,13 @@ def validate_hit_layers(
         layer_kind: kind of each layer: 0 = pixel (measures u and v), 1 = strip (u only).
         source: file name (or :class:`TableSource`) to name in messages.
         z_tolerance: allowed |z − layer_z[layer]| [mm].
+        area: the layers' active areas; if given, also checks errors and positions
+            (:func:`validate_hit_area`).
 
     Raises:
         InputError: ``layer`` outside [0, n_layers); ``z`` not the layer's z; ``v`` or
-            ``sigma_v`` set on a strip layer or missing on a pixel layer.
+            ``sigma_v`` set on a strip layer or missing on a pixel layer; with ``area``,
+            an error larger than the layer or a hit outside its layer's area.
         ValueError: ``layer_z`` and ``layer_kind`` differ in length or a kind is not 0/1.
     """
     layer_z = np.asarray(layer_z, dtype=np.float64)
@@ -493,48 +596,108 @@ def validate_hit_layers(
         raise ValueError("layer_kind values must be 0 (pixel) or 1 (strip)")
     n_layers = layer_z.size
     key = ("event_id", "hit_id")
-    layer = table.column("layer").to_numpy().astype(np.int64)
-    row = _first_true((layer < 0) | (layer >= n_layers))
-    if row is not None:
-        raise _row_error(
-            source,
-            table,
-            row,
-            "layer",
-            key,
-            f"is {layer[row]}, not a layer of the geometry (valid: 0 to {n_layers - 1})",
-        )
-    z = table.column("z").to_numpy()
-    expected = layer_z[layer]
-    row = _first_true(~(np.abs(z - expected) <= z_tolerance))
-    if row is not None:
-        raise _row_error(
-            source,
-            table,
-            row,
-            "z",
-            key,
-            f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected[row])!r} mm",
-        )
-    strip = layer_kind[layer] == 1
-    v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
-    sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
-    bad_v = np.where(strip, ~v_null, v_null)
-    bad_sv = np.where(strip, ~sv_null, sv_null)
-    row = _first_true(bad_v | bad_sv)
-    if row is not None:
-        column = "v" if bad_v[row] else "sigma_v"
-        if strip[row]:
-            problem = f"is not null but layer {layer[row]} is a strip layer (v, sigma_v must be null)"
-        else:
-            problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
-        raise _row_error(source, table, row, column, key, problem)
+    layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)  # a null is reported as null
+    valid = (layer >= 0) & (layer < n_layers)
+    index = np.where(valid, layer, 0)  # rows of invalid layers are reported by the first check only
+
+    def layers():
+        row = _first_true(~valid)
+        if row is not None:
+            raise _row_error(source, table, row, "layer", key,
+                             f"is {layer[row]}, not a layer of the geometry (valid: 0 to {n_layers - 1})")
+
+    def z_values():
+        z = table.column("z").to_numpy()
+        expected = layer_z[index]
+        row = _first_true(valid & ~(np.abs(z - expected) <= z_tolerance))
+        if row is not None:
+            raise _row_error(source, table, row, "z", key,
+                             f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected[row])!r} mm")
+
+    def measured_coordinates():
+        strip = layer_kind[index] == 1
+        v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
+        sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
+        bad_v = valid & np.where(strip, ~v_null, v_null)
+        bad_sv = valid & np.where(strip, ~sv_null, sv_null)
+        row = _first_true(bad_v | bad_sv)
+        if row is not None:
+            column = "v" if bad_v[row] else "sigma_v"
+            if strip[row]:
+                problem = f"is not null but layer {layer[row]} is a strip layer (v, sigma_v must be null)"
+            else:
+                problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
+            raise _row_error(source, table, row, column, key, problem)
+
+    checks = [layers, z_values, measured_coordinates]
+    if area is not None:
+        checks.append(lambda: validate_hit_area(table, area, source=source))
+    _raise_first(checks)
 
 
-def _pair_keys(
+def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hits") -> None:
+    """Check the errors and positions of hits (with valid layers) against their layers' areas.
+
+    - ``sigma_u`` (``sigma_v``) at most the layer's extent in u (v): a larger error says
+      nothing about where the particle passed and only hides a unit or column mix-up.
+      (The lower bound, :data:`~pkf.io.schemas.MIN_SIGMA_MM`, needs no geometry and is a
+      rule of the hits table.)
+    - u (v) at most ``AREA_TOLERANCE_SIGMAS`` of the hit's own σ plus ``AREA_MARGIN_MM``
+      outside the layer's area: a simulated hit lies within a few σ of the area (the
+      smearing of a particle that crossed it near an edge) and noise hits lie on it.
+
+    Raises:
+        InputError: one line naming the file, the column and the first bad row.
+    """
+    key = ("event_id", "hit_id", "layer")
+    layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)
+    valid = (layer >= 0) & (layer < area.u_min.size)  # other layers are reported by validate_hit_layers
+    layer = np.where(valid, layer, 0)
+    u = table.column("u").to_numpy()
+    sigma_u = table.column("sigma_u").to_numpy()
+    v = table.column("v").to_numpy(zero_copy_only=False)  # NaN where null (strips)
+    sigma_v = table.column("sigma_v").to_numpy(zero_copy_only=False)
+    pixel = ~np.isnan(v)
+    extent_u = (area.u_max - area.u_min)[layer]
+    extent_v = (area.v_max - area.v_min)[layer]
+    tol_u = AREA_TOLERANCE_SIGMAS * sigma_u + AREA_MARGIN_MM
+    tol_v = AREA_TOLERANCE_SIGMAS * np.where(pixel, sigma_v, 0.0) + AREA_MARGIN_MM
+    beyond = f"by more than {AREA_TOLERANCE_SIGMAS:g} σ + {AREA_MARGIN_MM:g} mm"
+
+    def too_large(sigma, extent):
+        return lambda r: (f"is {float(sigma[r])!r} mm, larger than layer {layer[r]}'s extent "
+                          f"({float(extent[r])!r} mm): not a measurement error")
+
+    def outside(values, lo, hi):
+        return lambda r: (f"is {float(values[r])!r} mm, outside layer {layer[r]}'s active area "
+                          f"[{float(lo[layer[r]])!r}, {float(hi[layer[r]])!r}] mm {beyond}")
+
+    with np.errstate(invalid="ignore"):
+        r_hole = area.hole_radius[layer]
+        in_hole = (pixel & (r_hole > 0) & (np.hypot(u, v) < r_hole - np.maximum(tol_u, tol_v))) | (
+            pixel & (np.abs(u) < area.hole_half_u[layer] - tol_u) & (np.abs(v) < area.hole_half_v[layer] - tol_v))
+        checks = (  # (column, bad rows, problem of a row); the first bad row of all is reported
+            ("sigma_u", sigma_u > extent_u, too_large(sigma_u, extent_u)),
+            ("sigma_v", sigma_v > extent_v, too_large(sigma_v, extent_v)),
+            ("u", (u < area.u_min[layer] - tol_u) | (u > area.u_max[layer] + tol_u),
+             outside(u, area.u_min, area.u_max)),
+            ("v", pixel & ((v < area.v_min[layer] - tol_v) | (v > area.v_max[layer] + tol_v)),
+             outside(v, area.v_min, area.v_max)),
+            ("u", in_hole, lambda r: (f"is {float(u[r])!r} mm with v = {float(v[r])!r} mm: inside layer "
+                                      f"{layer[r]}'s beam hole {beyond}")),
+        )
+    found = [(row, k) for k, (_, bad, _) in enumerate(checks) if (row := _first_true(valid & bad)) is not None]
+    if found:
+        row, k = min(found)
+        name, _, problem = checks[k]
+        raise _row_error(source, table, row, name, key, problem(row))
+
+
+def pair_keys(
     ev_a: np.ndarray, id_a: np.ndarray, ev_b: np.ndarray, id_b: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Encode (event, id) pairs of two tables as int64 keys that are equal iff the pairs are."""
+    """Encode (event, id) pairs of two tables as int64 keys that are equal iff the pairs are
+    (for any int64 values, negative ones included)."""
     if ev_a.size == 0 or ev_b.size == 0:
         return np.zeros(ev_a.size, np.int64), np.zeros(ev_b.size, np.int64)
     ev_lo = min(int(ev_a.min()), int(ev_b.min()))
@@ -557,7 +720,7 @@ def _missing_pairs(
     """First row whose (event, id) is not among the reference pairs (only rows where ``check``)."""
     if ev.size == ref_ev.size and np.array_equal(ev, ref_ev) and np.array_equal(ids, ref_ids):
         return None
-    keys, ref_keys = _pair_keys(ev, ids, ref_ev, ref_ids)
+    keys, ref_keys = pair_keys(ev, ids, ref_ev, ref_ids)
     found = np.isin(keys, ref_keys)
     bad = ~found if check is None else check & ~found
     return _first_true(bad)
@@ -572,7 +735,9 @@ def validate_consistency(
 ) -> None:
     """Check that the MC truth refers to existing hits and particles.
 
-    - every ``mc_hits`` row has a ``hits`` row with the same (event_id, hit_id);
+    - every ``mc_hits`` row has a ``hits`` row with the same (event_id, hit_id), and
+      every ``hits`` row an ``mc_hits`` row (a hit without truth would shift the
+      efficiency silently; noise hits have a row with particle_id 0);
     - every non-zero ``mc_hits.particle_id`` exists in ``particles`` for that event;
     - every ``particles.parent_id`` is 0 or a particle of the same event.
 
@@ -601,6 +766,13 @@ def validate_consistency(
             hits_name = str(sources.get("hits", "hits"))
             raise _row_error(
                 src_mc, mc_hits, row, "hit_id", key, f"has no hit with the same event_id, hit_id in {hits_name}"
+            )
+        hits_ev = hits.column("event_id").to_numpy()
+        row = _missing_pairs(hits_ev, hits.column("hit_id").to_numpy(), mc_ev, mc_hits.column("hit_id").to_numpy())
+        if row is not None:
+            raise _row_error(
+                sources.get("hits", "hits"), hits, row, "hit_id", key,
+                f"has no row in {src_mc}: with MC truth every hit needs one (noise hits: particle_id 0)",
             )
         if particles is not None:
             pid = mc_hits.column("particle_id").to_numpy()
@@ -661,6 +833,29 @@ def read_meta(dataset_dir: str | os.PathLike) -> dict:
     return meta
 
 
+def find_truth_tables(dataset_dir: str | os.PathLike) -> dict[str, Path | None]:
+    """Locate the MC truth tables ``particles`` and ``mc_hits`` of a dataset (None if absent).
+
+    MC truth is both tables or neither. One without the other is an incomplete dataset
+    (a lost or half-copied file), not a dataset without MC: ``mc_hits`` alone gives no
+    production momentum for the efficiency bins, the q/p pulls and the beamline truth,
+    ``particles`` alone cannot be matched to any hit; skipping the MC silently would
+    give a run that looks complete but is not. So it is an error naming the missing table.
+
+    Raises:
+        InputError: exactly one of the two tables exists.
+    """
+    path = Path(dataset_dir)
+    found = {name: find_table(path, name) for name in ("particles", "mc_hits")}
+    for missing, present in (("particles", "mc_hits"), ("mc_hits", "particles")):
+        if found[missing] is None and found[present] is not None:
+            raise InputError(
+                f"{path / missing}.parquet: not found (nor {missing}/), but {found[present]} is present: "
+                f"MC truth needs both particles and mc_hits"
+            )
+    return found
+
+
 @dataclass(frozen=True)
 class Dataset:
     """A validated dataset directory (DESIGN §6).
@@ -692,6 +887,7 @@ def open_dataset(
     *,
     layer_z: Sequence[float] | np.ndarray | None = None,
     layer_kind: Sequence[int] | np.ndarray | None = None,
+    area: LayerArea | None = None,
 ) -> Dataset:
     """Open and validate a dataset directory: ``meta.json``, ``hits`` and, if present,
     ``particles`` and ``mc_hits``, plus their consistency (:func:`validate_consistency`).
@@ -700,6 +896,7 @@ def open_dataset(
         dataset_dir: the dataset directory.
         layer_z, layer_kind: if both are given, the hits are also checked against
             these geometry layers (:func:`validate_hit_layers`).
+        area: with them, the layers' active areas (errors and positions of the hits).
 
     Raises:
         InputError: one line naming the file, column and first bad row.
@@ -711,17 +908,20 @@ def open_dataset(
     if not path.is_dir():
         raise InputError(f"{shown}: not a directory (a dataset is a directory with meta.json and hits)")
     meta = read_meta(path)
-    hits, hits_src = _read_with_source(path, HITS, "hits")
+    truth = find_truth_tables(path)
+    if (layer_z is None) != (layer_kind is None):
+        raise ValueError("give both layer_z and layer_kind, or neither")
+    check_layers = None
+    if layer_z is not None:
+        def check_layers(table, source):
+            validate_hit_layers(table, layer_z, layer_kind, source=source, area=area)
+    hits, hits_src = _read_with_source(path, HITS, "hits", check_layers)
     sources = {"hits": hits_src}
     tables: dict[str, pa.Table | None] = {}
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
-        if find_table(path, name) is None:
+        if truth[name] is None:
             tables[name] = None
             continue
         tables[name], sources[name] = _read_with_source(path, schema, name)
-    if (layer_z is None) != (layer_kind is None):
-        raise ValueError("give both layer_z and layer_kind, or neither")
-    if layer_z is not None:
-        validate_hit_layers(hits, layer_z, layer_kind, source=hits_src)
     validate_consistency(hits, tables["particles"], tables["mc_hits"], sources=sources)
     return Dataset(path, meta, hits, tables["particles"], tables["mc_hits"], sources)

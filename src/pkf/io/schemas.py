@@ -37,6 +37,9 @@ __all__ = [
     "STATE_LOCATIONS",
     "TableSpec",
     "TABLE_SPECS",
+    "EVENT_ID_LIMIT",
+    "PARTICLE_ID_LIMIT",
+    "MIN_SIGMA_MM",
     "spec_for",
     "pack_covariance",
     "unpack_covariance",
@@ -58,6 +61,17 @@ COV_COLUMNS: tuple[str, ...] = tuple(f"c{i}{j}" for i in range(5) for j in range
 STATE_LOCATIONS: tuple[str, ...] = ("first_hit", "last_hit", "beamline")
 
 _TRIU = np.triu_indices(5)
+
+#: particle_id < 2²⁴ and −2³⁸ ≤ event_id < 2³⁸ in ``particles``: MC matching combines both
+#: into one int64 key per particle (``pkf.pipeline.inputs.particle_key``); larger ids
+#: would overflow it or make two particles share a key.
+PARTICLE_ID_LIMIT = 1 << 24
+EVENT_ID_LIMIT = 1 << 38
+
+#: Smallest measurement error accepted [mm] (1 nm): no tracking detector resolves
+#: positions a thousand times better than a micrometre, and the fits and the pattern
+#: recognition divide by σ² (σ = 1e-300 overflows to infinity).
+MIN_SIGMA_MM = 1e-6
 
 
 def _field(name: str, type_: pa.DataType, nullable: bool = False) -> pa.Field:
@@ -215,6 +229,10 @@ class TableSpec:
         non_negative: numeric columns that must be >= 0 where not null.
         null_together: groups of columns that must be all null or all non-null in a row.
         allow_empty: whether a table with zero rows is valid.
+        ranges: (column, lowest, highest, why) where not null: lowest <= value <= highest
+            (None: unbounded on that side); ``why`` is said in the message.
+        nonzero_vectors: (columns, why): the components of a vector whose length must be
+            > 0 (e.g. a particle's momentum); ``why`` is said in the message.
     """
 
     name: str
@@ -225,6 +243,8 @@ class TableSpec:
     non_negative: tuple[str, ...] = ()
     null_together: tuple[tuple[str, ...], ...] = ()
     allow_empty: bool = True
+    ranges: tuple[tuple[str, float | None, float | None, str], ...] = ()
+    nonzero_vectors: tuple[tuple[tuple[str, ...], str], ...] = ()
 
 
 #: Validation rules per table name.
@@ -237,6 +257,8 @@ TABLE_SPECS: dict[str, TableSpec] = {
         positive=("sigma_u", "sigma_v"),
         null_together=(("v", "sigma_v"),),
         allow_empty=False,
+        ranges=tuple((c, MIN_SIGMA_MM, None, "in mm; no detector measures positions to 1 nm")
+                     for c in ("sigma_u", "sigma_v")),
     ),
     "particles": TableSpec(
         "particles",
@@ -245,6 +267,12 @@ TABLE_SPECS: dict[str, TableSpec] = {
         finite=("mass", "vx", "vy", "vz", "px", "py", "pz"),
         positive=("particle_id",),
         non_negative=("mass", "parent_id"),
+        ranges=(("particle_id", None, PARTICLE_ID_LIMIT - 1, "MC matching keys particles by event and id"),
+                ("parent_id", None, PARTICLE_ID_LIMIT - 1, "MC matching keys particles by event and id"),
+                ("event_id", -EVENT_ID_LIMIT, EVENT_ID_LIMIT - 1, "MC matching keys particles by event and id")),
+        # every particle of the table was produced with a momentum: a charged particle that
+        # left hits cannot have p = 0, and q/p, p_true and the pulls would not be finite
+        nonzero_vectors=((("px", "py", "pz"), "a particle's momentum; q/p = charge/p"),),
     ),
     "mc_hits": TableSpec(
         "mc_hits",
@@ -253,6 +281,8 @@ TABLE_SPECS: dict[str, TableSpec] = {
         finite=("x", "y", "z", "tx", "ty", "qop"),
         non_negative=("particle_id",),
         null_together=(("tx", "ty", "qop"),),
+        # a particle's hit has a finite momentum: p_true = 1/|qop| in the pulls
+        nonzero_vectors=((("qop",), "the true q/p of a particle's hit; p = 1/|qop|"),),
     ),
     "chi2": TableSpec("chi2", CHI2, unique_key=("event_id", "track_id", "fitter")),
     "candidates": TableSpec("candidates", CANDIDATES, unique_key=("event_id", "track_id", "hit_id")),
@@ -356,10 +386,19 @@ def table_from_columns(schema: pa.Schema, columns: Mapping[str, object]) -> pa.T
     return pa.Table.from_arrays(arrays, schema=schema)
 
 
-#: particle keys: event_id·PARTICLE_KEY_BASE + particle_id (`particle_key`)
-PARTICLE_KEY_BASE = 1 << 24
+#: particle keys: zigzag(event_id)·PARTICLE_KEY_BASE + particle_id (`particle_key`)
+PARTICLE_KEY_BASE = PARTICLE_ID_LIMIT
 
 
 def particle_key(event_id, particle_id):
-    """A particle id unique across events (0 stays 0 for noise); key % 2²⁴ = particle_id."""
-    return np.where(particle_id > 0, event_id * PARTICLE_KEY_BASE + particle_id, 0)
+    """A particle id unique across events: > 0 for every particle, 0 for noise (particle_id 0).
+
+    key = zigzag(event_id)·2²⁴ + particle_id, where zigzag maps event ids 0, −1, 1, −2, …
+    to 0, 1, 2, 3, …: negative event ids are legitimate and must give positive keys, as
+    every user of a key takes key > 0 to mean "a particle" (matching, reconstructibility,
+    pulls). key % 2²⁴ = particle_id. The reader guarantees the ranges that make the key
+    unique and free of overflow (:data:`PARTICLE_ID_LIMIT`, :data:`EVENT_ID_LIMIT`).
+    """
+    event = np.asarray(event_id, dtype=np.int64)
+    zigzag = np.where(event >= 0, 2 * event, -2 * event - 1)
+    return np.where(particle_id > 0, zigzag * PARTICLE_KEY_BASE + particle_id, 0)

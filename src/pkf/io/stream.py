@@ -153,9 +153,8 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
                 offsets = tuple(int(x) for x in np.cumsum([0] + [t.num_rows for _, _, t in segments]))
                 source = OffsetSource(file, tuple(f for f, _, _ in segments), offsets,
                                       tuple(r for _, r, _ in segments))
-                _validate_values(both, schema, spec, source)
-                if check is not None:
-                    check(both, source)
+                extra = [lambda: check(both, source)] if check is not None else []
+                _validate_values(both, schema, spec, source, extra)  # the first bad row of all checks
                 ev = table.column("event_id").to_numpy()
                 new = np.flatnonzero(np.r_[True, ev[1:] != ev[:-1]])
                 if events and ev[0] == events[-1]:

@@ -10,6 +10,7 @@ date, the pkf version and every fit's status.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -20,7 +21,7 @@ from pkf.errors import InputError
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json
 from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS
-from pkf.params.transport import STEP_CODES, STEP_NONE, ParametrizedExtrapolator
+from pkf.params.transport import STEP_CODES, STEP_NONE, STEP_UT_TO_SCIFI, ParametrizedExtrapolator
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable
 
 FORMAT = "pkf-params/1"
@@ -99,11 +100,7 @@ class ParameterSet:
         )
 
     def check_geometry(self, geometry: Geometry, source: str) -> None:
-        if self.geometry_hash != geometry.content_hash:
-            raise InputError(
-                f"{source}: parameters are for geometry {self.geometry_name!r} (hash {self.geometry_hash}), "
-                f"not for {geometry.name!r} (hash {geometry.content_hash}); run pkf tune for it"
-            )
+        _check_geometry_record(self.geometry_name, self.geometry_hash, geometry, source)
 
     def to_json_dict(self) -> dict:
         return {
@@ -145,15 +142,85 @@ class ParameterSet:
     @classmethod
     def load(cls, path: str | Path) -> ParameterSet:
         path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(f"--params {path}: no such file") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"--params {path}: not a JSON parameter file ({exc})") from None
-        if not isinstance(data, dict):
-            raise InputError(f"--params {path}: not a JSON parameter file")
-        return cls.from_json_dict(data, source=str(path))
+        return cls.from_json_dict(_read_parameter_json(path), source=str(path))
+
+
+def _check_geometry_record(name, content_hash, geometry: Geometry, source: str) -> None:
+    if content_hash != geometry.content_hash:
+        raise InputError(
+            f"{source}: parameters are for geometry {name!r} (hash {content_hash}), "
+            f"not for {geometry.name!r} (hash {geometry.content_hash}); run pkf tune for it"
+        )
+
+
+def _read_parameter_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"--params {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"--params {path}: not a JSON parameter file ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"--params {path}: not a JSON parameter file")
+    return data
+
+
+#: Fewest extrapolation coefficients each step type reads (its formula's parameters; DESIGN
+#: §9.2): velo p0–p1 (paper eq. 10), velo_to_ut p0–p8 (eqs. 15–20), ut/scifi p0–p14 (eq. 14
+#: with the slope and field-shape terms; the degree-4 monomials p15–p49 may be absent, as in
+#: files tuned before them: absent coefficients are zero), ut_to_scifi p0 (the energy lost
+#: before the table step).
+MIN_EXTRAPOLATION_PARAMS = {"velo": 2, "velo_to_ut": 9, "ut": 15, "scifi": 15, "ut_to_scifi": 1}
+#: Fewest noise coefficients of a step: p̃0–p̃3 of paper eq. 11 (the floor p̃4 and the
+#: straggling p̃5 are extensions that are zero when absent).
+MIN_NOISE_PARAMS = 4
+
+
+def _finite_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_coefficients(data: dict, geometry: Geometry, source: str) -> None:
+    """Schema check of a parameter file's coefficients against the geometry it is for.
+
+    One slot per layer of the geometry, in order; every coefficient a finite number; per
+    slot, at least the coefficients its step type reads (``MIN_EXTRAPOLATION_PARAMS``,
+    ``MIN_NOISE_PARAMS``) and at most as many as the formulas have; the UT→SciFi table
+    present if the geometry has that step. A file failing this would fit every track with
+    garbage (or zeros) and say ``ok``.
+
+    Raises:
+        InputError: one line naming the file (``source``) and the slot or key.
+    """
+    slots = data.get("slots")
+    if not isinstance(slots, list) or len(slots) != geometry.n_layers:
+        found = f"{len(slots)} entries" if isinstance(slots, list) else repr(slots)
+        raise InputError(f"{source}: 'slots' has {found}; geometry {geometry.name!r} needs one per layer "
+                         f"({geometry.n_layers})")
+    structure = slot_structure(geometry)
+    kind_names = {code: name for name, code in STEP_CODES.items()}
+    for i, slot in enumerate(slots):
+        if not isinstance(slot, dict) or slot.get("slot", i) != i:
+            raise InputError(f"{source}: slots[{i}]: expected an object with \"slot\": {i}")
+        kind = structure.slot_kind(i)
+        step = kind_names.get(kind)
+        for key, most, fewest in (("extrapolation", N_EXTRAPOLATION_PARAMS, MIN_EXTRAPOLATION_PARAMS.get(step, 0)),
+                                  ("noise", N_NOISE_PARAMS, MIN_NOISE_PARAMS if step else 0)):
+            values = slot.get(key)
+            if not isinstance(values, list):
+                raise InputError(f"{source}: slots[{i}].{key}: expected a list of numbers, found {values!r}")
+            bad = next((j for j, v in enumerate(values) if not _finite_number(v)), None)
+            if bad is not None:
+                raise InputError(f"{source}: slots[{i}].{key}[{bad}] is {values[bad]!r}: coefficients must be "
+                                 f"finite numbers")
+            if not fewest <= len(values) <= most:
+                leaving = f"the {step!r} step leaving layer {i}" if step else f"slot {i}"
+                raise InputError(f"{source}: slots[{i}].{key} has {len(values)} coefficients; {leaving} needs "
+                                 f"{fewest} to {most}")
+    if STEP_UT_TO_SCIFI in (structure.within_type.tolist() + structure.between_type.tolist()) \
+            and not isinstance(data.get("ut_to_scifi"), dict):
+        raise InputError(f"{source}: 'ut_to_scifi' is {data.get('ut_to_scifi')!r}; geometry {geometry.name!r} "
+                         f"has a ut_to_scifi step, which needs its table")
 
 
 def shipped_parameters(geometry: Geometry) -> ParameterSet:
@@ -163,15 +230,24 @@ def shipped_parameters(geometry: Geometry) -> ParameterSet:
         raise InputError(
             f"no shipped parameters for geometry {geometry.name!r}; run `pkf tune` and pass --params"
         )
-    params = ParameterSet.from_json_dict(json.loads(resource.read_text()), source=f"shipped {geometry.name}.json")
+    data = json.loads(resource.read_text())
+    params = ParameterSet.from_json_dict(data, source=f"shipped {geometry.name}.json")
     params.check_geometry(geometry, source=f"shipped parameters {geometry.name}.json")
+    check_coefficients(data, geometry, source=f"shipped parameters {geometry.name}.json")
     return params
 
 
 def load_parameters(geometry: Geometry, path: str | Path | None) -> ParameterSet:
-    """`--params FILE` if given (checked against the geometry), else the shipped default."""
+    """`--params FILE` if given (checked against the geometry: its hash, then
+    :func:`check_coefficients`), else the shipped default."""
     if path is None:
         return shipped_parameters(geometry)
-    params = ParameterSet.load(path)
+    data = _read_parameter_json(Path(path))
+    record = data.get("geometry")
+    if data.get("format") == FORMAT and isinstance(record, dict) and "hash" in record:
+        # a file for another geometry says so first; then its coefficients, before they are read
+        _check_geometry_record(record.get("name"), record["hash"], geometry, f"--params {path}")
+        check_coefficients(data, geometry, source=f"--params {path}")
+    params = ParameterSet.from_json_dict(data, source=str(path))
     params.check_geometry(geometry, source=f"--params {path}")
     return params

@@ -9,8 +9,16 @@ import numpy as np
 import pyarrow as pa
 
 from pkf.errors import InputError
-from pkf.geometry.detector import Geometry, load_geometry, parse_geometry
-from pkf.io.reader import Dataset, open_dataset, read_meta
+from pkf.geometry.detector import (
+    BUILTIN_GEOMETRIES,
+    KIND_PIXEL,
+    SIDE_LEFT,
+    SIDE_RIGHT,
+    Geometry,
+    load_geometry,
+    parse_geometry,
+)
+from pkf.io.reader import Dataset, LayerArea, open_dataset, pair_keys, read_meta
 from pkf.io.schemas import particle_key
 
 STATE_NAMES = ("x", "y", "tx", "ty", "qop")
@@ -21,18 +29,63 @@ def load_dataset(path: str | Path) -> tuple[Geometry, Dataset]:
     path = Path(path)
     meta = read_meta(path)
     geometry = dataset_geometry(path, meta)
-    return geometry, open_dataset(path, layer_z=geometry.layer_z, layer_kind=geometry.layer_kind)
+    return geometry, open_dataset(path, **hit_layer_checks(geometry))
+
+
+def hit_layer_checks(geometry: Geometry) -> dict:
+    """What the readers check hits against (keyword arguments of
+    :func:`pkf.io.reader.validate_hit_layers`): the layers' z and kind and their areas."""
+    return {"layer_z": geometry.layer_z, "layer_kind": geometry.layer_kind, "area": layer_area(geometry)}
+
+
+def layer_area(geometry: Geometry) -> LayerArea:
+    """Bounds of the measured coordinates on each layer's active area [mm] (DESIGN §3).
+
+    Pixel layers measure (u, v) = (x, y): x within ±half_x, cut to the side a VELO-like
+    module covers (left: x ≤ +overlap, right: x ≥ −overlap), y within ±half_y, outside
+    the beam hole. Strip layers measure u = x·cos α + y·sin α: its extremes over the
+    rectangle of x and y ranges (the strip's unmeasured coordinate may lie anywhere on it).
+    """
+    planes = geometry.planes
+    active = np.flatnonzero(planes.layer >= 0)
+    index = active[np.argsort(planes.layer[active])]  # the plane of each layer
+    half_x, half_y = planes.half_x[index], planes.half_y[index]
+    side, overlap = planes.side[index], planes.side_overlap[index]
+    x_lo = np.where(side == SIDE_RIGHT, np.maximum(-half_x, -overlap), -half_x)
+    x_hi = np.where(side == SIDE_LEFT, np.minimum(half_x, overlap), half_x)
+    cos, sin = geometry.layer_cos, geometry.layer_sin
+    corners = np.stack([x * cos + y * sin for x in (x_lo, x_hi) for y in (-half_y, half_y)])
+    pixel = geometry.layer_kind == KIND_PIXEL
+    zero = np.zeros(geometry.n_layers)
+    return LayerArea(
+        u_min=np.where(pixel, x_lo, corners.min(axis=0)),
+        u_max=np.where(pixel, x_hi, corners.max(axis=0)),
+        v_min=np.where(pixel, -half_y, np.nan),
+        v_max=np.where(pixel, half_y, np.nan),
+        hole_radius=np.where(pixel, planes.hole_radius[index], zero),
+        hole_half_u=np.where(pixel, planes.hole_half_x[index], zero),
+        hole_half_v=np.where(pixel, planes.hole_half_y[index], zero),
+    )
 
 
 def dataset_geometry(path: Path, meta: dict) -> Geometry:
     """The geometry a dataset was simulated with: its ``geometry.toml`` copy, else the
     built-in named in meta.json; the content hash must match meta.json."""
     info = meta.get("geometry", {})
+    if isinstance(info, str):  # a plain name (DESIGN §6: datasets from other producers)
+        info = {"name": info}
+    if not isinstance(info, dict):
+        raise InputError(f"{path / 'meta.json'}: key 'geometry' must be a name or an object, not {info!r}")
     copy = path / str(info.get("file", "geometry.toml"))
     if copy.is_file():
         geometry = parse_geometry(copy.read_text(), source=str(copy))
-    elif "name" in info:
+    elif info.get("name") in BUILTIN_GEOMETRIES:  # the copy of a built-in may go: the hash checks it
         geometry = load_geometry(info["name"])
+    elif "name" in info:
+        raise InputError(
+            f"{path}: geometry file {copy} not found: meta.json names geometry {info['name']!r}, which is "
+            f"not built in ({', '.join(BUILTIN_GEOMETRIES)}); restore the file"
+        )
     else:
         raise InputError(f"{path / 'meta.json'}: no geometry recorded (key 'geometry')")
     if "hash" in info and info["hash"] != geometry.content_hash:
@@ -63,8 +116,8 @@ def align_mc(dataset, event_id: np.ndarray):
     """Per hit row: its MC particle (0 for noise or no MC record) and the true state
     (x, y, tx, ty, q/p) of its mc_hit (NaN for noise), shape (n_hits, 5)."""
     mc = dataset.mc_hits
-    mc_key = column(mc, "event_id", np.int64) * (1 << 32) + column(mc, "hit_id", np.int64)
-    hit_key = event_id * (1 << 32) + column(dataset.hits, "hit_id", np.int64)
+    mc_key, hit_key = pair_keys(column(mc, "event_id", np.int64), column(mc, "hit_id", np.int64),
+                                event_id, column(dataset.hits, "hit_id", np.int64))
     order = np.argsort(mc_key, kind="stable")
     pos = np.minimum(np.searchsorted(mc_key[order], hit_key), max(mc_key.size - 1, 0))
     idx = order[pos]

@@ -18,10 +18,10 @@ import numpy as np
 
 from pkf.errors import InputError
 from pkf.geometry.detector import Geometry
-from pkf.io.reader import read_meta, validate_consistency, validate_hit_layers
+from pkf.io.reader import find_truth_tables, read_meta, validate_consistency, validate_hit_layers
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES
-from pkf.io.stream import TableScan, find_and_scan, read_rows
-from pkf.pipeline.inputs import dataset_geometry
+from pkf.io.stream import TableScan, find_and_scan, read_rows, scan_table
+from pkf.pipeline.inputs import dataset_geometry, hit_layer_checks
 
 __all__ = ["DatasetPlan", "Partition", "plan_dataset"]
 
@@ -123,16 +123,17 @@ def plan_dataset(path: str | Path, events_per_batch: int) -> DatasetPlan:
         raise InputError(f"{path}: not a directory (a dataset is a directory with meta.json and hits)")
     meta = read_meta(path)
     geometry = dataset_geometry(path, meta)
+    truth = find_truth_tables(path)
+    layer_checks = hit_layer_checks(geometry)
 
     def check_layers(table, source):
-        validate_hit_layers(table, geometry.layer_z, geometry.layer_kind, source=source)
+        validate_hit_layers(table, **layer_checks, source=source)
 
     digest = hashlib.sha256()  # over every file, hits then particles then mc_hits (as content_hash)
     tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers, digest)}
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
-        scan = find_and_scan(path, name, schema, False, content_digest=digest)
-        if scan is not None:
-            tables[name] = scan
+        if truth[name] is not None:
+            tables[name] = scan_table(truth[name], schema, name, content_digest=digest)
     partitions = _partitions(tables["hits"], events_per_batch)
     _check_consistency(tables, partitions)
     return DatasetPlan(path, meta, geometry, tables, tuple(partitions), digest.hexdigest()[:16])

@@ -1,0 +1,158 @@
+"""Issue 13, checks at the reader: errors and positions of hits against their layers' areas,
+incomplete MC truth, hits without truth, particles without momentum, id ranges the MC
+matching needs. Each message is one line naming the file, the column and the first bad row."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from io_helpers import LAYER_KIND, LAYER_Z, make_tables, raises_input_error, replace_column, write_dataset
+
+from pkf.io import HITS, PARTICLES, open_dataset, read_table, validate_consistency
+from pkf.io.reader import AREA_MARGIN_MM, AREA_TOLERANCE_SIGMAS, LayerArea, pair_keys, validate_hit_layers
+
+#: Toy areas of the io_helpers layers: two pixel layers (the second covers only u ≤ 2, like
+#: a VELO module's side), then two strip layers.
+AREA = LayerArea(
+    u_min=np.array([-10.0, -10.0, -12.0, -12.0]), u_max=np.array([10.0, 2.0, 12.0, 12.0]),
+    v_min=np.array([-10.0, -10.0, np.nan, np.nan]), v_max=np.array([10.0, 10.0, np.nan, np.nan]),
+    hole_radius=np.zeros(4), hole_half_u=np.zeros(4), hole_half_v=np.zeros(4),
+)
+
+
+def _set_rows(hits, column, rows, values):
+    """``hits`` with ``column`` set at ``rows`` (null stays null in v, sigma_v)."""
+    array = hits.column(column).to_numpy(zero_copy_only=False).copy()
+    array[rows] = values
+    i = hits.schema.get_field_index(column)
+    return hits.set_column(i, hits.field(i), pa.array(array, type=pa.float64(), from_pandas=hits.field(i).nullable))
+
+
+def _hits_with(**changes):
+    hits = make_tables()["hits"]
+    for column, (row, value) in changes.items():
+        hits = _set_rows(hits, column, row, value)
+    return hits
+
+
+def _check(hits, area=AREA):
+    validate_hit_layers(hits, LAYER_Z, LAYER_KIND, area=area, source="hits.parquet")
+
+
+def _outside(sigma: float, n_sigma: float) -> float:
+    """A distance [mm] outside an area edge: n_sigma of σ plus the margin."""
+    return n_sigma * sigma + AREA_MARGIN_MM
+
+
+def test_the_tables_of_the_helpers_are_inside():
+    _check(make_tables()["hits"])
+
+
+def test_hits_within_the_tolerance_pass_and_beyond_fail():
+    # row 1: layer 1 (pixel, u ≤ 2 mm, σ 0.0125 mm); row 2: layer 2 (strip, |u| ≤ 12 mm, σ 0.05 mm)
+    inside = AREA_TOLERANCE_SIGMAS - 0.5
+    beyond = AREA_TOLERANCE_SIGMAS + 0.5
+    _check(_hits_with(u=(1, 2.0 + _outside(0.0125, inside))))
+    _check(_hits_with(u=(2, -12.0 - _outside(0.05, inside))))
+    raises_input_error(lambda: _check(_hits_with(u=(1, 2.0 + _outside(0.0125, beyond)))),
+                       "hits.parquet: column 'u': row 1 (event_id=0, hit_id=1, layer=1)",
+                       "outside layer 1's active area [-10.0, 2.0] mm")
+    raises_input_error(lambda: _check(_hits_with(u=(2, -12.0 - _outside(0.05, beyond)))),
+                       "column 'u': row 2 (", "outside layer 2's active area")
+    raises_input_error(lambda: _check(_hits_with(v=(4, 1e300))), "column 'v': row 4 (", "is 1e+300 mm")
+
+
+def test_first_bad_row_over_all_columns():
+    """The first bad row of all checks (as a streamed scan, batch by batch, finds it)."""
+    raises_input_error(lambda: _check(_hits_with(v=(4, 50.0), u=(6, 50.0))), "column 'v': row 4 (")
+    raises_input_error(lambda: _check(_hits_with(u=(6, 50.0), sigma_v=(9, 50.0))), "column 'u': row 6 (")
+    raises_input_error(lambda: _check(_hits_with(u=(6, 50.0), sigma_u=(5, 50.0))), "column 'sigma_u': row 5 (")
+
+
+@pytest.mark.parametrize("hole", ["round", "square"])
+def test_hit_in_the_beam_hole(hole):
+    sizes = np.array([0.0, 1.0, 0.0, 0.0])
+    area = replace(AREA, hole_radius=sizes) if hole == "round" else replace(AREA, hole_half_u=sizes, hole_half_v=sizes)
+    hits = make_tables()["hits"]
+    hits = _set_rows(hits, "u", hits.column("layer").to_numpy() == 1, 1.5)  # beside the hole
+    _check(hits, area)
+    for u, v in ((0.3, -0.2), (-0.5, 0.4)):
+        bad = _set_rows(_set_rows(hits, "u", 1, u), "v", 1, v)
+        raises_input_error(lambda: _check(bad, area), "column 'u': row 1 (", "inside layer 1's beam hole")
+    _check(_set_rows(_set_rows(hits, "u", 1, 0.95), "v", 1, 0.0), area)  # within the tolerance of the edge
+
+
+def test_error_larger_than_the_layer():
+    raises_input_error(lambda: _check(_hits_with(sigma_u=(2, 25.0))),
+                       "column 'sigma_u': row 2 (", "larger than layer 2's extent (24.0 mm)")
+    raises_input_error(lambda: _check(_hits_with(sigma_v=(0, 21.0))), "column 'sigma_v': row 0 (")
+    _check(_hits_with(sigma_u=(2, 1.0)))
+
+
+@pytest.mark.parametrize("value", [1e-300, 1e-7])
+def test_error_below_a_nanometre(tmp_path, value):
+    write_dataset(tmp_path, {"hits": _hits_with(sigma_u=(5, value))})
+    raises_input_error(lambda: read_table(tmp_path, HITS, name="hits"),
+                       "hits.parquet: column 'sigma_u': row 5 (event_id=0, hit_id=5)", ">= 1e-06")
+
+
+@pytest.mark.parametrize("missing", ["particles", "mc_hits"])
+def test_mc_truth_is_both_tables_or_neither(tmp_path, missing):
+    tables = make_tables()
+    del tables[missing]
+    write_dataset(tmp_path / "ds", tables)
+    raises_input_error(lambda: open_dataset(tmp_path / "ds"), f"{tmp_path / 'ds' / missing}.parquet: not found",
+                       "MC truth needs both")
+
+
+def test_hits_without_truth():
+    tables = make_tables()
+    mc = tables["mc_hits"]
+    without = mc.filter(np.arange(mc.num_rows) != 11)  # event 1, hit 2
+    raises_input_error(lambda: validate_consistency(tables["hits"], tables["particles"], without,
+                                                    sources={"hits": "hits.parquet", "mc_hits": "mc_hits.parquet"}),
+                       "hits.parquet: column 'hit_id': row 11 (event_id=1, hit_id=2) has no row in mc_hits.parquet")
+
+
+@pytest.mark.parametrize("momentum", [0.0, 1e-200])  # 1e-200: p² underflows, p = 0
+def test_particle_without_momentum(tmp_path, momentum):
+    particles = make_tables()["particles"]
+    for c in ("px", "py", "pz"):
+        values = particles.column(c).to_numpy().copy()
+        values[3] = momentum
+        particles = replace_column(particles, c, values)
+    write_dataset(tmp_path, {"particles": particles})
+    raises_input_error(lambda: read_table(tmp_path, PARTICLES, name="particles"),
+                       "particles.parquet: column 'px': row 3 (event_id=1, particle_id=2)", "of length 0")
+
+
+def test_ids_the_matching_cannot_key(tmp_path):
+    particles = make_tables()["particles"]
+    pid = particles.column("particle_id").to_numpy().copy()
+    pid[5] = 1 << 24
+    write_dataset(tmp_path, {"particles": replace_column(particles, "particle_id", pid)})
+    raises_input_error(lambda: read_table(tmp_path, PARTICLES, name="particles"),
+                       "column 'particle_id': row 5 (", "must be <= 16777215")
+
+
+def test_pair_keys_with_negative_ids():
+    ev_a, id_a = np.array([-5, -5, -1, 0, 3]), np.array([-1, 2, 7, 7, 0])
+    ev_b, id_b = np.array([-5, 0, 3, -1]), np.array([2, 7, 1, 7])
+    ka, kb = pair_keys(ev_a, id_a, ev_b, id_b)
+    assert np.isin(ka, kb).tolist() == [False, True, True, True, False]
+    assert np.unique(ka).size == ka.size
+
+
+def test_hit_truth_without_momentum(tmp_path):
+    """q/p = 0 (infinite momentum) in mc_hits gave p_true = inf in the pulls."""
+    from pkf.io import MC_HITS
+
+    mc = make_tables()["mc_hits"]
+    qop = mc.column("qop").to_numpy(zero_copy_only=False).copy()
+    qop[5] = 0.0
+    write_dataset(tmp_path, {"mc_hits": mc.set_column(8, mc.field(8), pa.array(qop, from_pandas=True))})
+    raises_input_error(lambda: read_table(tmp_path, MC_HITS, name="mc_hits"),
+                       "mc_hits.parquet: column 'qop': row 5 (event_id=0, hit_id=5) is 0.0, must not be 0")
