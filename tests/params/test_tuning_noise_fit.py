@@ -23,7 +23,7 @@ from pkf.pipeline.tune import pion_pairs
 def gun_pairs(tmp_path_factory):
     data = tmp_path_factory.mktemp("noise") / "gun200"
     assert main(["simulate", "--out", str(data), "--generator", "gun", "--events", "200", "--seed", "1"]) == 0
-    geometry, _, pairs, _ = pion_pairs(data)
+    geometry, _, _, pairs, _ = pion_pairs(data)
     groups = {g.name: g for g in step_groups(slot_structure(geometry), pairs, geometry.layer_z.size)}
     return geometry, pairs, groups
 

@@ -104,8 +104,8 @@ def failed_fits(reports: dict) -> list[str]:
 
 
 def pion_pairs(dataset_path):
-    """(geometry, field map, the state pairs of the dataset's pions, number of events): the
-    data set D of the tuning (DESIGN §9.3).
+    """(geometry, dataset, field map, the state pairs of the dataset's pions, number of
+    events): the data set D of the tuning (DESIGN §9.3).
 
     Raises:
         InputError: the dataset has no MC truth, mc_hits of unknown particles, or no pions.
@@ -132,7 +132,7 @@ def pion_pairs(dataset_path):
         raise InputError(f"{dataset_path}: no pion hits to tune on")
     pairs = build_pairs(event[signal], particle[signal], layer[signal], truth[signal], production["qop"][pos],
                         geometry.layer_z, field_map)
-    return geometry, field_map, pairs, int(np.unique(event).size)
+    return geometry, dataset, field_map, pairs, int(np.unique(event).size)
 
 
 def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print) -> ParameterSet:
@@ -146,7 +146,7 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
     """
     out = check_output_file(out, overwrite, inputs=(dataset_path,))
     started = time.perf_counter()
-    geometry, field_map, pairs, n_events = pion_pairs(dataset_path)
+    geometry, dataset, field_map, pairs, n_events = pion_pairs(dataset_path)
     check_enough_pairs(dataset_path, geometry, pairs, n_events)
     echo(f"tune: {pairs.x1.shape[0]} state pairs of pions from {n_events} events")
     table = ut_to_scifi_table(geometry, field_map)
