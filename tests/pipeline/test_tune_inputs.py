@@ -85,3 +85,29 @@ def test_one_event_is_too_little_data(one_event, tmp_path, capsys):
                    "at least 30 events", "no parameter file written")
     assert "velo" not in err  # the shared VELO set has pairs enough
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_a_fit_that_is_not_valid_writes_no_file(tmp_path, capsys, monkeypatch):
+    """Before: "NOT VALID" was printed and the parameter file written all the same."""
+    import pkf.pipeline.tune as tune
+
+    data = tmp_path / "tel"
+    assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun",
+                 "--events", "40", "--seed", "2"]) == 0
+    real = tune.tune_slots
+
+    def one_invalid(*args, **kwargs):
+        result = real(*args, **kwargs)
+        result.reports["slot 3"]["noise"]["valid"] = False
+        return result
+
+    monkeypatch.setattr(tune, "tune_slots", one_invalid)
+    out = tmp_path / "params.json"
+    code = main(["tune", str(data), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.splitlines()[-1].startswith("pkf: error: ") and "slot 3 noise" in err.splitlines()[-1], err
+    assert not out.exists()
+    monkeypatch.setattr(tune, "tune_slots", real)
+    assert main(["tune", str(data), "--out", str(out)]) == 0  # the same sample, every fit valid
+    assert out.is_file()
