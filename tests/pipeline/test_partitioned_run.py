@@ -3,6 +3,7 @@ same tables; an interrupted (SIGKILL) run resumes to the same output; --overwrit
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -172,3 +173,30 @@ def test_rerun_of_complete_run_and_overwrite(dataset, reference, tmp_path, capsy
     info = json.loads((out / "run.json").read_text())
     assert info["execution"]["resumed_partitions"] == 0
     assert partition_files(out) == partition_files(reference)
+
+
+@pytest.mark.parametrize("damage", ["delete", "modify", "stray"])
+def test_rerun_of_a_damaged_complete_run_names_the_file(dataset, reference, tmp_path, capsys, damage):
+    """Issue 13 case 9: a rerun re-uses a complete run only if its files match run.json;
+    a damaged one is refused naming the file (exit 2), and nothing is changed."""
+    out = tmp_path / "copy"
+    shutil.copytree(reference, out)
+    victim = out / "states" / "part-0000-00001.parquet"
+    assert victim.is_file()
+    if damage == "delete":
+        victim.unlink()
+    elif damage == "modify":
+        data = bytearray(victim.read_bytes())
+        data[len(data) // 2] ^= 0x01
+        victim.write_bytes(bytes(data))
+    else:
+        victim = victim.with_name("part-0000-00099.parquet")
+        shutil.copy(out / "states" / "part-0000-00000.parquet", victim)
+    before = {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    capsys.readouterr()
+    code = main(["reconstruct", str(dataset), "--out", str(out), "--workers", "1", "--events-per-batch", "4", *ARGS])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.startswith("pkf: error: ") and err.count("\n") == 1 and str(victim) in err, err
+    assert {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()} == before
+    assert not (tmp_path / ".copy.partial").exists()

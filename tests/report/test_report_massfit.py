@@ -115,9 +115,9 @@ def test_mass_comparison_matches_decays_not_positions():
     rng = np.random.default_rng(13)
     truth = rng.normal(BS_MASS, 10.0, 1200)
     decays = np.arange(1200)
-    ref = FitterArrays(masses=truth, mass_decays=decays)
+    ref = FitterArrays(signal_masses=truth, mass_decays=decays)
     keep = rng.permutation(1200)[:1000]  # the other fitter lost 200 decays, lists them shuffled
-    mine = FitterArrays(masses=BS_MASS + 1.2 * (truth[keep] - BS_MASS), mass_decays=decays[keep])
+    mine = FitterArrays(signal_masses=BS_MASS + 1.2 * (truth[keep] - BS_MASS), mass_decays=decays[keep])
     result = _mass_comparison(mine, ref)
     assert result["n_candidates"] == 1000
     assert result["sigma_ratio"] == pytest.approx(1.2, rel=2e-3)

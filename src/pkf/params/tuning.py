@@ -67,6 +67,21 @@ SCALE_FLOOR_QOP = 1e-5
 #: (pulled by the outliers) needed ~2000 calls per fit
 EM_MAX_ITERATIONS = 50
 EM_TOLERANCE = 1e-9
+#: lower limit of the noise fit's p̃1 (position noise = p̃1·Δz·σ_slope)
+NOISE_MIN_POSITION_RATIO = 1e-4
+#: a fit needs at least this many pairs per free parameter (extrapolation fits) …
+MIN_PAIRS_PER_PARAMETER = 10
+#: … and the noise fit (5 parameters, the 2-D likelihood of eq. 13) this many pairs
+MIN_NOISE_PAIRS = 50
+#: free parameters of the largest extrapolation fit of each step type (`fit_extrapolation`,
+#: `fit_table_energy_loss`): the design columns of its f_tx (UT, SciFi) or f_x (VELO→UT) fit
+EXTRAPOLATION_FIT_PARAMETERS = {
+    STEP_VELO: 2,
+    STEP_UT: 8 + len(LAYER_TX_MONOMIALS),
+    STEP_SCIFI: 8 + len(LAYER_TX_MONOMIALS),
+    STEP_VELO_TO_UT: 4,
+    STEP_UT_TO_SCIFI: 1,
+}
 
 
 @dataclass
@@ -285,7 +300,7 @@ def robust_linear_fit(design: np.ndarray, target: np.ndarray, scale: np.ndarray 
     good = np.all(np.isfinite(design), axis=1) & np.isfinite(target)
     design, target = design[good], target[good]
     n, k = design.shape
-    if n < 10 * k:
+    if n < MIN_PAIRS_PER_PARAMETER * k:
         return np.zeros(k), FitReport(False, 0, n)
     scale_cols = np.maximum(np.sqrt(np.mean(design**2, axis=0)), 1e-300)
     q = np.empty((n, k), order="F")
@@ -369,7 +384,7 @@ def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, 
     path_x = n2 * np.sqrt(n2) * (1 + tx * tx)
     path_y = n2 * np.sqrt(n2) * (1 + ty * ty)
     n = dx.size
-    if n < 50:
+    if n < MIN_NOISE_PAIRS:
         return np.zeros(N_NOISE_PARAMS), FitReport(False, 0, n)
     q2 = qop * qop
     slope_spread = np.sqrt(np.mean(np.concatenate([dtx, dty]) ** 2))
@@ -392,8 +407,18 @@ def fit_noise(dx: np.ndarray, dtx: np.ndarray, dy: np.ndarray, dty: np.ndarray, 
 
     m = Minuit(nll, (p0, max(pos_ratio, 1e-3), 0.0, 0.0, 1e-3 * slope_spread + 1e-9))
     m.errordef = Minuit.LIKELIHOOD
-    m.limits = [(0, None), (1e-4, 10.0), (-0.99, 0.99), (-0.99, 0.99), (0, None)]
+    m.limits = [(0, None), (NOISE_MIN_POSITION_RATIO, 10.0), (-0.99, 0.99), (-0.99, 0.99), (0, None)]
     m.migrad()
+    if not m.valid and m.values[1] < 2 * NOISE_MIN_POSITION_RATIO:
+        # No position noise above the 1 µm floor (steps between thin layers with nothing in
+        # between: the true state after layer a drifts straight to layer b): p̃1 sits at
+        # its lower limit and the correlations ρ, which then scale a covariance of ~0,
+        # are a flat direction of the likelihood; Migrad wanders along it to its call
+        # limit (INVALID, Hesse failed). Fix p̃1 at the limit and ρ at 0, fit the rest.
+        m.values[1], m.values[2], m.values[3] = NOISE_MIN_POSITION_RATIO, 0.0, 0.0
+        for j in (1, 2, 3):
+            m.fixed[j] = True
+        m.migrad()
     params = np.zeros(N_NOISE_PARAMS)
     params[:5] = np.abs(np.asarray(m.values))  # p̃5 (straggling) is set per step type
     return params, FitReport(bool(m.valid), int(m.nfcn), n)
@@ -517,6 +542,47 @@ def fit_table_energy_loss(x1: np.ndarray, x2_ref: np.ndarray, uts_arrays):
     return p, reports
 
 
+def required_pairs(kind: int) -> int:
+    """State pairs a step of type `kind` needs at least: every one of its fits has
+    MIN_PAIRS_PER_PARAMETER pairs per free parameter, the noise fit MIN_NOISE_PAIRS."""
+    return max(MIN_PAIRS_PER_PARAMETER * EXTRAPOLATION_FIT_PARAMETERS[kind], MIN_NOISE_PAIRS)
+
+
+@dataclass(frozen=True)
+class StepGroup:
+    """The pairs that tune one parameter set: `name` ("velo" or "slot N"), step type,
+    the slots that receive the set and the indices of its pairs in the StatePairs."""
+
+    name: str
+    kind: int
+    slots: np.ndarray
+    pairs: np.ndarray
+
+
+def step_groups(slots: SlotStructure, pairs: StatePairs, n_layers: int) -> list[StepGroup]:
+    """The parameter sets to tune, one per slot; the VELO set is shared by all VELO slots —
+    every slot whose step is of the VELO type gets it, also the upstream modules that
+    tracks from the luminous region never leave from. Includes the slots without pairs
+    (an empty `pairs`), so that a caller sees every set the geometry needs."""
+    kind, slot = pair_slot(slots, pairs.layer_a, pairs.layer_b)
+    velo = kind == STEP_VELO
+    velo_slots = np.array([i for i in range(n_layers - 1) if slots.slot_kind(i) == STEP_VELO], dtype=np.int64)
+    groups = []
+    if velo_slots.size or velo.any():
+        groups.append(StepGroup("velo", STEP_VELO, velo_slots, np.flatnonzero(velo)))
+    for s in range(n_layers - 1):
+        k = slots.slot_kind(s)
+        if k in (STEP_NONE, STEP_VELO):
+            continue
+        groups.append(StepGroup(f"slot {s}", k, np.array([s]), np.flatnonzero((slot == s) & ~velo)))
+    return groups
+
+
+def short_steps(groups: list[StepGroup]) -> list[tuple[StepGroup, int]]:
+    """The groups with fewer pairs than their fits need (`required_pairs`), with that need."""
+    return [(g, required_pairs(g.kind)) for g in groups if g.pairs.size < required_pairs(g.kind)]
+
+
 @dataclass
 class TuningResult:
     """Parameters per slot and the report of every fit."""
@@ -531,23 +597,14 @@ def tune_slots(slots: SlotStructure, pairs: StatePairs, layer_z: np.ndarray, uts
     n_layers = layer_z.size
     extrapolation = np.zeros((n_layers, N_EXTRAPOLATION_PARAMS))
     noise = np.zeros((n_layers, N_NOISE_PARAMS))
-    kind, slot = pair_slot(slots, pairs.layer_a, pairs.layer_b)
     z1 = layer_z[pairs.layer_a]
     z2 = layer_z[pairs.layer_b]
     reports = {}
-    # groups: the VELO set is shared by all VELO slots
-    groups = []
-    velo = kind == STEP_VELO
-    if velo.any():
-        # one shared VELO set: every slot whose step is of the VELO type gets it, also
-        # the upstream modules that tracks from the luminous region never leave from
-        velo_slots = np.array([i for i in range(n_layers - 1) if slots.slot_kind(i) == STEP_VELO])
-        groups.append(("velo", STEP_VELO, velo_slots, np.flatnonzero(velo)))
-    for s in np.unique(slot[(kind >= 0) & ~velo]):
-        sel = np.flatnonzero((slot == s) & ~velo)
-        groups.append((f"slot {s}", int(kind[sel[0]]), np.array([s]), sel))
     rng = np.random.default_rng(12345)
-    for name, k, members, sel in groups:
+    for group in step_groups(slots, pairs, n_layers):
+        name, k, members, sel = group.name, group.kind, group.slots, group.pairs
+        if sel.size == 0:
+            continue
         if sel.size > MAX_PAIRS_PER_FIT:
             sel = np.sort(rng.choice(sel, MAX_PAIRS_PER_FIT, replace=False))
         x1, x2, x2r = pairs.x1[sel], pairs.x2[sel], pairs.x2_ref[sel]

@@ -21,16 +21,22 @@ from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
 from pkf.pipeline.report import run_report
 from pkf.pipeline.simulate import SimulationConfig, run_simulation
 from pkf.params.gauss import gaussian_core
+from pkf.report.runs import verify_run_files
 
 DEMO_FITTERS = ("parametrized", "reference")
 
 
 def headline_numbers(run_dir: Path) -> dict:
-    """Pull widths and δp/p core per fitter at the first hit, and the fit speed-up."""
+    """Pull widths and δp/p core per fitter at the first hit, and the fit speed-up.
+
+    Raises:
+        InputError: a partition file of the run does not match run.json.
+    """
+    run = json.loads((run_dir / "run.json").read_text())
+    verify_run_files(run_dir, run)
     pulls = read_table(run_dir, PULLS, name="pulls").to_pydict()
     fitter = np.array(pulls["fitter"])
     first = np.array(pulls["location"]) == "first_hit"
-    run = json.loads((run_dir / "run.json").read_text())
     out = {}
     for name in sorted(set(fitter)):
         sel = first & (fitter == name)

@@ -7,7 +7,8 @@ partition writes its table files (atomically), then its journal entry
 ``_journal/PART.json`` with the partition's key (hash of its inputs and configuration)
 and the SHA-256 of each file. A rerun keeps the partitions whose entry has the same
 key and whose files still have the recorded hashes, and removes everything else;
-``--overwrite`` starts from scratch.
+``--overwrite`` starts from scratch. A rerun of a complete run of the same partitions
+checks its files against run.json and refuses a damaged one, naming the file.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 from pkf.errors import InputError
 from pkf.io.atomic import check_output_dir
 from pkf.io.stream import file_sha256
+from pkf.report.runs import verify_run_files
 
 JOURNAL = "_journal"
 
@@ -44,17 +46,24 @@ def verify_entry(root: Path, entry: dict, key: str) -> bool:
 
 
 def complete_run(final: Path, keys: dict[str, str]) -> dict | None:
-    """run.json of an existing complete run of exactly these partitions with intact files, else None."""
+    """run.json of an existing complete run of exactly these partitions (names and keys),
+    else None.
+
+    Raises:
+        InputError: it is such a run, but a partition file is missing, changed or
+            joined by an unlisted one (:func:`pkf.report.runs.verify_run_files`).
+    """
     try:
         info = json.loads((final / "run.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     records = info.get("partitions") if isinstance(info, dict) else None
-    if not isinstance(records, list) or sorted(r.get("name", "") for r in records if isinstance(r, dict)) != sorted(keys):
+    if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
         return None
-    if all(verify_entry(final, r, keys[r["name"]]) for r in records):
-        return info
-    return None
+    if {r.get("name"): r.get("key") for r in records} != keys or len(records) != len(keys):
+        return None
+    verify_run_files(final, info)
+    return info
 
 
 class RunStaging:

@@ -1,8 +1,17 @@
-"""The `pkf tune` stage: fit the parametrized extrapolations on a simulated dataset (DESIGN §9.3)."""
+"""The `pkf tune` stage: fit the parametrized extrapolations on a simulated dataset (DESIGN §9.3).
+
+Before any work (the UT→SciFi tabulation alone takes ~30–90 s) the output file is
+checked (:func:`check_output_file`) and every step of the geometry must have the state
+pairs its fits need (:func:`pkf.params.tuning.required_pairs`); too little data is
+refused with one line that names the steps and the events it would take, rather than a
+parameter file with zeros in the steps that could not be fitted.
+"""
 
 from __future__ import annotations
 
 import datetime
+import math
+import os
 import time
 from pathlib import Path
 
@@ -15,7 +24,7 @@ from pkf.io.atomic import check_output_apart
 from pkf.io.schemas import particle_key
 from pkf.params.parameter_set import ParameterSet, slot_structure
 from pkf.params.transport import STEP_UT_TO_SCIFI
-from pkf.params.tuning import build_pairs, tune_slots
+from pkf.params.tuning import build_pairs, short_steps, step_groups, tune_slots
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
 from pkf.pipeline.inputs import align_mc, column, load_dataset, production_truth
 
@@ -39,15 +48,67 @@ def ut_to_scifi_table(geometry: Geometry, field_map) -> UTSciFiTable | None:
     return None
 
 
-def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print) -> ParameterSet:
-    """Tune every step of the dataset's geometry and write the parameter file `out`."""
-    out = Path(out)
-    check_output_apart(out, [dataset_path])
-    if out.exists() and not overwrite:
-        raise InputError(f"--out {out}: exists (use --overwrite to replace it)")
-    if not out.parent.is_dir():
-        raise InputError(f"--out {out}: directory {out.parent} does not exist")
-    started = time.perf_counter()
+def check_output_file(path: str | os.PathLike, overwrite: bool, inputs=()) -> Path:
+    """Check that the output file ``path`` can be written (atomically: a temporary file in
+    its folder, then a rename); return it as an absolute path.
+
+    Raises:
+        InputError: ``path`` is a directory or another non-file, exists and ``overwrite``
+            is False, its folder does not exist or is not writable, or it equals or sits
+            inside one of ``inputs`` (files or directories).
+    """
+    check_output_apart(path, inputs)
+    shown = os.fspath(path)
+    final = Path(os.path.abspath(path))
+    if final.is_dir():
+        raise InputError(f"--out {shown}: is a directory (give the parameter file to write, e.g. {shown}/params.json)")
+    if final.exists() or final.is_symlink():
+        if not final.is_file():
+            raise InputError(f"--out {shown}: exists and is not a regular file")
+        if not overwrite:
+            raise InputError(f"--out {shown}: exists (use --overwrite to replace it)")
+    folder = final.parent
+    if not folder.is_dir():
+        raise InputError(f"--out {shown}: directory {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"--out {shown}: directory {folder} is not writable")
+    return final
+
+
+def check_enough_pairs(dataset_path, geometry: Geometry, pairs, n_events: int) -> None:
+    """Refuse a dataset with fewer state pairs in a step than its fits need (one line:
+    the steps, their pairs and need, and the events it would take)."""
+    groups = step_groups(slot_structure(geometry), pairs, geometry.layer_z.size)
+    short = short_steps(groups)
+    if not short:
+        return
+    shown = ", ".join(f"{g.name} {g.pairs.size}/{need}" for g, need in short[:4])
+    more = f" and {len(short) - 4} more" if len(short) > 4 else ""
+    worst = max(need / max(g.pairs.size, 1) for g, need in short)
+    raise InputError(
+        f"{dataset_path}: too little data to tune {len(short)} of {len(groups)} steps (pairs/needed: {shown}{more}); "
+        f"at the same rate of pion pairs per event that takes at least {math.ceil(worst * n_events)} events "
+        f"(this dataset has {n_events}); no parameter file written")
+
+
+def failed_fits(reports: dict) -> list[str]:
+    """The fits Minuit did not mark valid, as "STEP FIT" (e.g. "slot 52 noise")."""
+    failed = []
+    for name, info in reports.items():
+        failed += [f"{name} {fit}" for fit, r in info["extrapolation"].items() if isinstance(r, dict)
+                   and not r.get("valid", True)]
+        if not info["noise"]["valid"]:
+            failed.append(f"{name} noise")
+    return failed
+
+
+def pion_pairs(dataset_path):
+    """(geometry, dataset, field map, the state pairs of the dataset's pions, number of
+    events): the data set D of the tuning (DESIGN §9.3).
+
+    Raises:
+        InputError: the dataset has no MC truth, mc_hits of unknown particles, or no pions.
+    """
     geometry, dataset = load_dataset(dataset_path)
     if dataset.mc_hits is None or dataset.particles is None:
         raise InputError(f"{dataset_path}: tuning needs mc_hits and particles (a simulated dataset)")
@@ -70,7 +131,23 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
         raise InputError(f"{dataset_path}: no pion hits to tune on")
     pairs = build_pairs(event[signal], particle[signal], layer[signal], truth[signal], production["qop"][pos],
                         geometry.layer_z, field_map)
-    echo(f"tune: {pairs.x1.shape[0]} state pairs of pions from {np.unique(event).size} events")
+    return geometry, dataset, field_map, pairs, int(np.unique(event).size)
+
+
+def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print) -> ParameterSet:
+    """Tune every step of the dataset's geometry and write the parameter file `out`.
+
+    Raises:
+        InputError: a bad ``out`` (:func:`check_output_file`), a dataset that is not a
+            simulation with pions, too few state pairs in a step
+            (:func:`check_enough_pairs`), or a fit that Minuit does not mark valid;
+            nothing is written.
+    """
+    out = check_output_file(out, overwrite, inputs=(dataset_path,))
+    started = time.perf_counter()
+    geometry, dataset, field_map, pairs, n_events = pion_pairs(dataset_path)
+    check_enough_pairs(dataset_path, geometry, pairs, n_events)
+    echo(f"tune: {pairs.x1.shape[0]} state pairs of pions from {n_events} events")
     table = ut_to_scifi_table(geometry, field_map)
     if table is not None:
         echo(f"tune: UT→SciFi table tabulated with RK4 ({time.perf_counter() - started:.0f} s so far)")
@@ -83,6 +160,11 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
         echo(f"tune: {name:<9} {info['pairs']:>7} pairs  fits {'ok' if ok else 'NOT VALID'}")
 
     result = tune_slots(slot_structure(geometry), pairs, geometry.layer_z, uts_arrays, progress=report)
+    failed = failed_fits(result.reports)
+    if failed:
+        raise InputError(f"{dataset_path}: {len(failed)} fits did not converge ({', '.join(failed[:5])}"
+                         f"{' …' if len(failed) > 5 else ''}): too little or unusual data for these steps; "
+                         "tune on more events; no parameter file written")
     params = ParameterSet(
         geometry_name=geometry.name, geometry_hash=geometry.content_hash,
         extrapolation=result.extrapolation, noise=result.noise, ut_to_scifi=table,
@@ -90,7 +172,7 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
             "pkf_version": pkf.__version__,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "field_map_hash": field_map.content_hash(),
-            "sample": {"dataset": str(Path(dataset_path).resolve()), "events": int(np.unique(event).size),
+            "sample": {"dataset": str(Path(dataset_path).resolve()), "events": n_events,
                        "pairs": int(pairs.x1.shape[0]), "meta": dataset.meta.get("config", {})},
             "fits": result.reports,
             "tuning_seconds": round(time.perf_counter() - started, 1),
