@@ -111,20 +111,22 @@ def test_parser_sees_a_missing_column():
 
 
 def _documented_geometry_keys() -> dict[str, set[str]]:
-    """Keys of each geometry table documented in docs/geometry.md (``| key |`` tables per section)."""
+    """Keys documented in docs/geometry.md: the first column of the first table of each
+    ``## [table]`` / ``## [[table]]`` section, and of ``## Top-level keys`` (as "top")."""
     sections = _sections((DOCS / "geometry.md").read_text(encoding="utf-8"))
     keys: dict[str, set[str]] = {}
     for title, text in sections.items():
         match = re.match(r"\[+([a-z_]+)\]+", title)
-        if not match:
+        if not match and not title.startswith("Top-level keys"):
             continue
-        table = match.group(1)
-        names = set()
+        table = match.group(1) if match else "top"
+        rows = []
         for line in text.splitlines():
-            if line.startswith("|") and not line.startswith("|---"):
-                cell = _cells(line)[0]
-                names.update(re.findall(r"`([a-z_0-9]+)`", cell))
-        keys[table] = names
+            if line.startswith("|"):
+                rows.append(line)
+            elif rows:
+                break  # the end of the first table
+        keys[table] = {name for line in rows[2:] for name in re.findall(r"`([a-z_0-9]+)`", _cells(line)[0])}
     return keys
 
 
