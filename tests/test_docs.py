@@ -186,3 +186,41 @@ def test_cli_doc_lists_every_command_and_option():
                         assert f"`{opt}" in sections[title], f"docs/cli.md '## {title}': option {opt} not documented"
             else:
                 assert param.human_readable_name.upper().split("[")[0].rstrip(".") in sections[title].upper()
+
+
+# --------------------------------------------------------------------------- links
+
+
+def _anchors(page: Path) -> set[str]:
+    """GitHub's anchors of the headings of a markdown page."""
+    titles = re.findall(r"^#+ +(.+?)\s*$", page.read_text(encoding="utf-8"), flags=re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", t.lower()).replace(" ", "-") for t in titles}
+
+
+def _citations():
+    """(where, page, anchor) of every docs citation in the sources, the docs and the README."""
+    root = DOCS.parent
+    sources = [*root.joinpath("src").rglob("*.py"), *root.joinpath("src").rglob("*.toml"), root / "README.md"]
+    for path in sources:
+        for page, anchor in re.findall(r"docs/([\w-]+\.md)(?:#([\w-]+))?", path.read_text(encoding="utf-8")):
+            yield path.relative_to(root), page, anchor
+    for path in DOCS.glob("*.md"):
+        for page, anchor in re.findall(r"\]\(([\w-]+\.md)?(?:#([\w-]+))?\)", path.read_text(encoding="utf-8")):
+            yield path.relative_to(root), page or path.name, anchor
+
+
+def test_every_docs_citation_resolves():
+    """Citations such as docs/formats.md#chi2 in code, docs and README name an existing page and heading."""
+    bad = []
+    for where, page, anchor in _citations():
+        target = DOCS / page
+        if not target.is_file() or (anchor and anchor not in _anchors(target)):
+            bad.append(f"{where}: docs/{page}#{anchor}")
+    assert not bad, f"citations that do not resolve: {bad}"
+
+
+def test_anchor_rule_matches_github():
+    page = DOCS / "physics.md"
+    assert "the-gaussian-sum-filter-gsf-and-the-bethe-heitler-mixture" in _anchors(page)
+    assert "the-reference-fitter-two-passes" in _anchors(page)
+    assert "summaryjson" in _anchors(DOCS / "formats.md")
