@@ -224,3 +224,18 @@ def test_anchor_rule_matches_github():
     assert "the-gaussian-sum-filter-gsf-and-the-bethe-heitler-mixture" in _anchors(page)
     assert "the-reference-fitter-two-passes" in _anchors(page)
     assert "summaryjson" in _anchors(DOCS / "formats.md")
+
+
+def test_formats_pyarrow_example_writes_valid_hits(tmp_path, monkeypatch):
+    """The plain-pyarrow example of docs/formats.md writes a hits table the reader accepts."""
+    from pkf.geometry import load_geometry
+    from pkf.io.reader import read_table, validate_hit_layers
+
+    code = re.search(r"```python\n(.*?)```", FORMATS["hits"], flags=re.DOTALL).group(1)
+    (tmp_path / "DATASET").mkdir()
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "docs/formats.md", "exec"), {})
+    hits = read_table(tmp_path / "DATASET", schemas.HITS, name="hits")
+    geometry = load_geometry("lhcb-like")
+    validate_hit_layers(hits, geometry.layer_z, geometry.layer_kind)
+    assert hits.num_rows == 2
