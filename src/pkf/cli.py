@@ -1,4 +1,4 @@
-"""The `pkf` command line: parse options, call the pipeline stages, print (DESIGN §1.1).
+"""The `pkf` command line: parse options, call the pipeline stages, print (docs/cli.md).
 
 Exit codes: 0 success, 2 bad usage or bad input (one line on stderr), 1 internal error.
 Set PKF_DEBUG=1 to see the traceback of an internal error.
@@ -150,7 +150,7 @@ def demo(out: Path, events: int, seed: int, overwrite: bool) -> None:
 
 
 def _interrupted_message(args: list[str]) -> str:
-    """What Ctrl-C left behind, for the command that was running (DESIGN §13: exit 130)."""
+    """What Ctrl-C left behind, for the command that was running (docs/cli.md#exit-codes-and-messages: exit 130)."""
     command = next((a for a in args if not a.startswith("-")), "")
     if command == "reconstruct":
         return ("pkf: interrupted; finished partitions are kept in the hidden staging directory "

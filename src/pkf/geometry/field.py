@@ -1,6 +1,6 @@
 """Magnetic field models: homogeneous, the analytic LHCb-like dipole, and its tabulated map.
 
-Units: positions in mm, field in tesla (DESIGN §2, §3.1).
+Units: positions in mm, field in tesla (docs/geometry.md#field).
 
 Every model is a `FieldModel` whose three arrays ``(kind, params, grid)`` are what the
 compiled kernels take; `field_at` evaluates any of them inside numba code, so the
@@ -75,7 +75,7 @@ def dipole_field(
     k: float = -0.10,
     length_scale: float = 1000.0,
 ) -> FieldModel:
-    """The analytic dipole of DESIGN §3.1.
+    """The analytic dipole of docs/geometry.md#field.
 
     On axis B_y(0,0,z) = b(z) = b0·E(z − z1)·E(z2 − z), E(s) = 1/(1 + exp(−s/λ)),
     λ = edge_length [mm]. Off axis B = −∇Φ with
@@ -117,7 +117,7 @@ def _dipole_profile(params, z):
 
 @nb.njit(cache=True)
 def _dipole_at(params, x, y, z):
-    """B = −∇Φ of the analytic dipole potential (DESIGN §3.1)."""
+    """B = −∇Φ of the analytic dipole potential (docs/geometry.md#field)."""
     b, b1, b2, b3 = _dipole_profile(params, z)
     c = params[_DIPOLE_K] / (params[_DIPOLE_L] * params[_DIPOLE_L])
     bx = c * b * 2.0 * x * y

@@ -1,4 +1,4 @@
-"""Parquet schemas, validating readers and atomic writers of pkf datasets and runs (DESIGN §6, §13)."""
+"""Parquet schemas, validating readers and atomic writers of pkf datasets and runs (docs/formats.md, docs/cli.md#exit-codes-and-messages)."""
 
 from pkf.io.atomic import (
     PARQUET_WRITE_OPTIONS,

@@ -1,7 +1,7 @@
 """Atomic, deterministic writers: Parquet tables, JSON files and staged output directories.
 
 A crashed or interrupted command must leave no file that looks complete
-(DESIGN §6, §13): every file is written under a hidden temporary name in its final
+(docs/formats.md, docs/cli.md#exit-codes-and-messages): every file is written under a hidden temporary name in its final
 directory and then renamed into place (``os.replace`` is atomic on POSIX), and
 whole output directories are built in a hidden sibling directory that is renamed
 into place only when the command succeeds (:func:`staged_output_dir`).
@@ -156,7 +156,7 @@ def atomic_write_json(obj: object, path: str | os.PathLike) -> Path:
 
 def check_output_apart(output: str | os.PathLike, inputs: Iterable[str | os.PathLike | None],
                        option: str = "--out") -> None:
-    """Refuse an output that equals, contains or sits inside one of the inputs (DESIGN §13).
+    """Refuse an output that equals, contains or sits inside one of the inputs (docs/cli.md#exit-codes-and-messages).
 
     With ``--overwrite`` an output directory is deleted and replaced, so an output that
     contains an input would delete it, and one that sits inside an input would change the

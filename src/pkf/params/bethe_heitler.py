@@ -1,4 +1,4 @@
-"""pkf's Gaussian-mixture approximation of the Bethe–Heitler bremsstrahlung distribution (DESIGN §4, §9.5).
+"""pkf's Gaussian-mixture approximation of the Bethe–Heitler bremsstrahlung distribution (docs/physics.md#the-gaussian-sum-filter-gsf-and-the-bethe-heitler-mixture).
 
 Bethe–Heitler: the fraction z = E_f/E_i of an electron's energy kept after a path of
 t radiation lengths has −ln z ~ Gamma(c, 1), c = t/ln 2, i.e. the density

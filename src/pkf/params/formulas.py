@@ -4,7 +4,7 @@ Every function transports ``s = (x, y, tx, ty, qop)`` over one step of a given t
 writing the new state and the Jacobian F = ∂out/∂in (5×5); q/p is the momentum at
 production and is left unchanged (f_qop = identity, paper §3). Units: mm, 1/MeV.
 
-Step types (DESIGN §9.2):
+Step types (docs/parameters.md#step-kinds-and-their-extrapolation-coefficients):
 
 - `velo_step` — paper eq. 10: f_tx = tx + p0·qop·(z0 + p1)·Δz, f_x = x + ½(tx + f_tx)·Δz,
   f_y = y + ty·Δz, f_ty = ty; z0 = the start z. Parameters (p0, p1).
@@ -14,11 +14,11 @@ Step types (DESIGN §9.2):
   f_y = y + [p5·ty + (1 − p5)·f_ty]·Δz, plus p9·qop·x² + (p11 + p13·y²)·qop·ty·y in the
   kick of f_tx and p10·qop·x·y + (p12 + p14·y²)·qop·tx·y in f_ty. p0…p5 are the paper's; p6…p8 add the slope dependence of the
   equations of motion, dtx/dz ∝ N·(1 + tx²) ≈ 1 + 1.5·tx² + 0.5·ty² and dty/dz ∝
-  −N·tx·ty (DESIGN §2): without them the curvature of a track with slope 0.25 is off by
+  −N·tx·ty (docs/physics.md#equations-of-motion-and-the-field): without them the curvature of a track with slope 0.25 is off by
   ~10% (measured: σ(q/p) pulls 1.29 on the telescope); p9, p10 the field's fall with |x|
-  (B_y ∝ 1 + k·(x² − y²)/L², B_x ∝ x·y, DESIGN §3.1), which at the SciFi's |x| ≤ 3 m
+  (B_y ∝ 1 + k·(x² − y²)/L², B_x ∝ x·y, docs/geometry.md#field), which at the SciFi's |x| ≤ 3 m
   changes the kick by tens of percent; p11, p12 the fringe field's B_z = b′(z)·y (the
-  ty·B_z and −tx·B_z terms of DESIGN §2), as large as B_y at the SciFi for |y| ~ 1 m
+  ty·B_z and −tx·B_z terms of the equations of motion), as large as B_y at the SciFi for |y| ~ 1 m
   (measured: a 1 mrad error at 3–5 GeV in the first SciFi step without them); p13, p14
   its y³ term (B_z = b′·y − b‴·y³/6). p15…p33 and p34…p49 complete the tx and ty kicks
   to *every* monomial x^a·tx^b·y^c·ty^d of degree a+b+c+d ≤ 4 allowed by the field's
@@ -28,12 +28,12 @@ Step types (DESIGN §9.2):
   (15); z_mag = p4 + p5·z_V + p6·z_V² + p7·ty_V² (19); x_UT = x_V + (z_mag − z_V)·tx_V +
   (z_UT − z_mag)·tx_UT (16); y_UT = y_V + [p8·ty_V + (1 − p8)·ty_UT]·Δz (20).
 
-Why the degree-4 kick (issue 6). In the SciFi, behind the magnet, the DESIGN §3.1 field
+Why the degree-4 kick (issue 6). In the SciFi, behind the magnet, the field of docs/geometry.md#field
 is b(z)·[1 + k(x² − y²)/L²] − b″(z)·y²/2 for B_y, b′(z)·[y + k(x²y − y³/3)/L²] − b‴(z)·y³/6
 for B_z and 2k·b(z)·x·y/L² for B_x, with b ∝ e^(−z/λ), λ = 420 mm, so b″·y²/2 = b·y²/(2λ²):
 B_y changes sign at |y| ≈ 0.6 m and is several times the on-axis value at |y| ~ 1.5 m.
 Integrated along the step, y → y + ty·s and x → x + tx·s, and multiplied by
-N·(1 + tx²), tx·ty and N·(1 + ty²) (DESIGN §2), the kick on tx is a polynomial in
+N·(1 + tx²), tx·ty and N·(1 + ty²) (the equations of motion), the kick on tx is a polynomial in
 (x, tx, y, ty) that is *even* under (x, tx) → −(x, tx) and under (y, ty) → −(y, ty), and the
 kick on ty is odd under both. Terms such as x·tx, y²·tx², y²·ty² (tx) and x·ty,
 tx·ty·y² (ty) are as large as the terms p0…p14 hold, and without them the SciFi steps were
@@ -49,7 +49,7 @@ coefficients are zero. For full sets the same sums run unrolled (`_tx_monomials`
 faster.
 
 `parametrized_noise` is paper eq. 11 with the path-length factors of Highland scattering
-and a noise floor p̃4 (DESIGN §15: Allen's failure mode for high-momentum, large-slope
+and a noise floor p̃4 (docs/parameters.md#noise-coefficients-all-step-kinds: Allen's failure mode for high-momentum, large-slope
 tracks, where the ∝ 1/p noise vanishes below the parametrization error). p̃5 [MeV] is
 the spread of the energy lost before a step (straggling): it enters as q/p noise
 (p̃5·qop²)² at the start of the step, propagated through the step's Jacobian (see
@@ -483,7 +483,7 @@ def parametrized_noise(pn, state, dz, noise):
     """Paper eq. 11 with a noise floor pn[4] and the path-length factors of Highland
     scattering: fills the 5×5 noise matrix of a step of length dz [mm] at `state`.
 
-    Q_txtx = (p̃0·qop)²·N³·(1 + tx²) + p̃4², Q_tyty likewise with ty (DESIGN §4: θ0² ∝ t
+    Q_txtx = (p̃0·qop)²·N³·(1 + tx²) + p̃4², Q_tyty likewise with ty (docs/physics.md#material-effects: θ0² ∝ t
     ∝ N and Q_txtx = θ0²·N²·(1 + tx²)); Q_xx = (p̃1·Δz)²·Q_txtx, Q_x,tx = p̃2·√(Q_xx·Q_txtx),
     and y likewise with p̃3. No noise on q/p.
     """

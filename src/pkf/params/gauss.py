@@ -1,6 +1,6 @@
 """Gaussian core of a distribution: iterative truncated-Gaussian fits (pull validation).
 
-As in ACTS' pull validation (DESIGN §15): fit a Gaussian by unbinned maximum
+As in ACTS' pull validation (docs/physics.md#matching-and-metrics): fit a Gaussian by unbinned maximum
 likelihood (iminuit) to the values within ±3σ of the current estimate, with the
 normal density renormalised to that window, and repeat three times.
 """

@@ -1,4 +1,4 @@
-"""The parametrized transport (paper §4, DESIGN §9.2): steps, their chain and the extrapolator record.
+"""The parametrized transport (paper §4, docs/parameters.md): steps, their chain and the extrapolator record.
 
 The one home of the parametrized extrapolation; no field or material map at fit time.
 The Kalman fitters use it through `pkf.fit.extrapolator` (which registers

@@ -1,6 +1,6 @@
 """UT→SciFi parametrized extrapolation: the tabulated q/p expansion of paper §4, eqs. 21–23.
 
-DESIGN §9.2, §9.3 ("UT→SciFi grid"), §15 (LHCb's UT→T table). Units: mm, MeV, T.
+Format and tuning: docs/parameters.md#the-utscifi-table. Units: mm, MeV, T.
 
 The model (paper eq. 21). A state (x, y, tx, ty, qop) at the last UT layer z_from is
 carried to z_to (the first SciFi layer) by
@@ -9,7 +9,7 @@ carried to z_to (the first SciFi layer) by
     f_y  = y  + ty·Δz + (same with the y coefficients)
     f_tx = tx         + (same with the tx coefficients)
     f_ty = ty         + (same with the ty coefficients)
-    f_qop = qop       (qop is the momentum at production, DESIGN §9.2)
+    f_qop = qop       (qop is the momentum at production, docs/physics.md#the-parametrized-fitter)
 
 with Δz = z_to − z_from, w = qop·p_min (the paper's (q/p)^k up to the factor p_min^k,
 which keeps every coefficient O(deflection)), and the deviations from the *ideal
@@ -19,7 +19,7 @@ direction* of a particle from the origin that hits the UT point (x, y, z_from):
 
 The bend. A particle from the origin with initial slope tx(0) gets, to first order in the
 deflection, tx(z) = tx(0) + qop·∫_0^z g dz' and x(z) = tx(0)·z + qop·∫_0^z (z − z')·g dz'
-with g(z') = −κ·B_y(0, 0, z') (DESIGN §2 for small slopes). Eliminating tx(0),
+with g(z') = −κ·B_y(0, 0, z') (the equations of motion for small slopes). Eliminating tx(0),
 
     tx(z_UT) − x(z_UT)/z_UT = qop·∫_0^{z_UT} g(z')·z'/z_UT dz'  ⇒  bend = ∫_0^{z_UT} g·z'/z_UT dz'
 

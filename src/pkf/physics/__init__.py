@@ -2,7 +2,7 @@
 
 Runge–Kutta transport in z with its Jacobian (`transport`) and thin-layer material
 effects — multiple scattering, ionisation energy loss, bremsstrahlung (`materials`).
-Units: mm, MeV (c = 1), tesla, rad (DESIGN §2, §4).
+Units: mm, MeV (c = 1), tesla, rad (docs/physics.md).
 """
 
 from pkf.physics.materials import (

@@ -1,6 +1,6 @@
 """Physical constants of particles: masses [MeV] (PDG 2024) and the B_s lifetime [mm].
 
-One place for them (DESIGN §14: physical constants live in `physics`): the simulation's
+One place for them (the import floors of tests/test_import_floors.py: physical constants live in `physics`): the simulation's
 species, the fitters' mass hypotheses and the material effects all take them from here.
 """
 
@@ -11,4 +11,4 @@ MASS_ELECTRON = 0.51099895
 MASS_MUON = 105.6583755
 MASS_PHI = 1019.461
 MASS_BS = 5366.92
-CTAU_BS = 0.455  # mm, cτ of the B_s (DESIGN §5)
+CTAU_BS = 0.455  # mm, cτ of the B_s (docs/physics.md#simulation)

@@ -1,6 +1,6 @@
 """Material effects in thin silicon-equivalent layers: scattering, energy loss, bremsstrahlung.
 
-DESIGN §4. Units: momenta, energies and masses in MeV (c = 1), lengths in mm, angles
+docs/physics.md#material-effects. Units: momenta, energies and masses in MeV (c = 1), lengths in mm, angles
 in rad, material thickness either in mm of silicon or as t = path length in radiation
 lengths X0. Every function here is a scalar ``@njit(cache=True)`` kernel callable from
 other compiled code (the simulation's transport loop and the reference Kalman fit);
@@ -91,7 +91,7 @@ def highland_theta0(p, mass, charge, t):
 
 @nb.njit(cache=True)
 def scattering_noise(tx, ty, theta0_sq):
-    """Thin-scatterer covariance of the slopes for a projected-angle variance θ0² (DESIGN §4).
+    """Thin-scatterer covariance of the slopes for a projected-angle variance θ0² (docs/physics.md#material-effects).
 
     Returns (Q_txtx, Q_txty, Q_tyty) = θ0²N²·((1+tx²), tx·ty, (1+ty²)), N² = 1+tx²+ty².
     """

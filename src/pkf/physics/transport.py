@@ -1,6 +1,6 @@
 """Runge–Kutta transport of a track state in z through a magnetic field, with its Jacobian.
 
-DESIGN §2, §5 (simulation transport), §9.1 (reference extrapolator). State at a plane
+docs/physics.md (equations of motion, simulation transport, reference fitter). State at a plane
 z: (x, y, tx, ty, qop) in mm, mm, 1, 1, 1/MeV; field in tesla through
 ``pkf.geometry.field.field_at(kind, params, grid, x, y, z)``. Equations of motion
 (N = √(1+tx²+ty²), κ = 0.299792458 MeV/(T·mm)):

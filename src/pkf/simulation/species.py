@@ -23,7 +23,7 @@ SPECIES = {
 }
 SPECIES_NAMES = tuple(SPECIES)
 
-# Minimum-bias composition of charged primaries (DESIGN §5): π 80%, K 12%, p 6%, e 1%, μ 1%.
+# Minimum-bias composition of charged primaries (docs/physics.md#simulation): π 80%, K 12%, p 6%, e 1%, μ 1%.
 MINBIAS_FRACTIONS = {"pion": 0.80, "kaon": 0.12, "proton": 0.06, "electron": 0.01, "muon": 0.01}
 
 
