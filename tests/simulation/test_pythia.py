@@ -141,17 +141,17 @@ def test_transport_stops_at_the_decay_vertex():
     ev = generate_gun(np.random.default_rng(1), GunSettings(particles=20, p_min=10000.0))
     state = np.column_stack([ev["vx"], ev["vy"], ev["px"] / ev["pz"], ev["py"] / ev["pz"],
                              ev["charge"] / np.linalg.norm(np.column_stack([ev["px"], ev["py"], ev["pz"]]), axis=1)])
-    offsets = np.array([0, 20])
-    args = (geometry, np.array([7]), offsets, state, ev["vz"], ev["mass"], ev["charge"], np.zeros(20, bool))
+    offsets = np.array([0, 10, 20])  # stopped particles in event 0, free ones in event 1
+    args = (geometry, np.array([7, 8]), offsets, state, ev["vz"], ev["mass"], ev["charge"], np.zeros(20, bool))
     free = simulate_response(*args)
     stop = np.full(20, np.inf)
     stop[:10] = ev["vz"][:10] + 300.0
     stopped = simulate_response(*args, stop_z=stop)
     early = (stopped.particle >= 0) & (stopped.particle < 10)
-    late = stopped.particle >= 10
+    late = stopped.event == 1
     assert np.all(stopped.z[early] <= stop[stopped.particle[early]])
     assert 0 < np.sum(early) < np.sum((free.particle >= 0) & (free.particle < 10))
-    assert np.sum(late) == np.sum(free.particle >= 10)
+    assert np.array_equal(stopped.u[late], free.u[free.event == 1], equal_nan=True)
 
 
 def test_decay_z_is_the_first_daughter_vertex():
