@@ -75,12 +75,22 @@ def best_cpu(repeat: int, fn):
     return min(times), result
 
 
+def starts_on_first_plane(sample: TruthSample) -> np.ndarray:
+    """Tracks whose first hit is on the first plane (ACTS's reference surface): the pulls use these."""
+    first_layer = sample.batch.layer[sample.batch.offsets[:-1]]
+    return first_layer == sample.batch.layer.min()
+
+
 def pull_cores(state, cov, truth, ok):
-    """Gaussian-core widths of the q/p and x pulls (state, truth in pkf's (x, y, tx, ty, q/p))."""
+    """Gaussian-core widths of the q/p and x pulls and of δ(q/p)/(q/p) at the first plane
+    (state, truth in pkf's (x, y, tx, ty, q/p)), over the tracks `ok`."""
     out = {}
     for name, i in (("qop", 4), ("x", 0)):
         pull = (state[ok, i] - truth[ok, i]) / np.sqrt(cov[ok, i, i])
         out[name] = gaussian_core(pull).sigma
+    out["dqop_over_qop"] = gaussian_core(state[ok, 4] / truth[ok, 4] - 1.0).sigma
+    out["median_qop_sigma_over_qop"] = float(np.median(np.sqrt(cov[ok, 4, 4]) / np.abs(state[ok, 4])))
+    out["tracks"] = int(ok.sum())
     return out
 
 
@@ -111,7 +121,7 @@ def pkf_rows(sample: TruthSample, electrons: TruthSample, repeat: int) -> dict:
         if "parametrized" in name:  # the parametrized states carry the production q/p
             t[:, 4] = sample.production_qop[sample.batch.hit_row[first]]
         rows[name] = {"tracks": int(sample.batch.n_tracks), "us_per_track": 1e6 * wall / sample.batch.n_tracks,
-                      "ok_fraction": float(ok.mean()), "pull_core": pull_cores(state, cov, t, ok)}
+                      "ok_fraction": float(ok.mean()), "pull_core": pull_cores(state, cov, t, ok & starts_on_first_plane(sample))}
     ctx = gsf_extrapolator(geometry)
     opts = FitOptions(max_outliers=0, max_components=GSF_COMPONENTS)
     wall, r = best_cpu(repeat, lambda: fit_batch_gsf(ctx, electrons.batch, opts, electrons.seeds, electrons.seed_covs))
@@ -119,7 +129,7 @@ def pkf_rows(sample: TruthSample, electrons: TruthSample, repeat: int) -> dict:
     ok = r.status == 0
     e_truth = electrons.truth[electrons.batch.hit_row[electrons.batch.offsets[:-1]]]
     rows["pkf gsf"] = {"tracks": int(electrons.batch.n_tracks), "us_per_track": 1e6 * wall / electrons.batch.n_tracks,
-                       "ok_fraction": float(ok.mean()), "pull_core": pull_cores(state, cov, e_truth, ok)}
+                       "ok_fraction": float(ok.mean()), "pull_core": pull_cores(state, cov, e_truth, ok & starts_on_first_plane(electrons))}
     return rows
 
 
@@ -313,15 +323,21 @@ def acts_fit(tel: ActsTelescope, sample: TruthSample, kind: str, repeat: int, be
     seq.addAlgorithm(Collect())
     seq.run()
     times = np.array(clock["stop"]) - np.array(clock["start"])
-    params, covs = fitted["rows"]
-    return {"cpu_s": float(times[1:].min()), "event_cpu_s": times.tolist(), "parameters": params, "covariances": covs}
+    params, covs, n_meas, last = fitted["rows"]
+    return {"cpu_s": float(times[1:].min()), "event_cpu_s": times.tolist(), "parameters": params, "covariances": covs,
+            "n_measurements": n_meas, "outermost_xy": last}
 
 
-def _track_parameters(tracks) -> tuple[np.ndarray, np.ndarray]:
-    """Bound parameters (n, 6) and covariances (n, 6, 6) of the fitted tracks at their reference surface."""
+def _track_parameters(tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per fitted track: bound parameters (n, 6) and covariances (n, 6, 6) at the reference
+    surface, the number of measurements used, and the (x, y) of its outermost measurement
+    (to identify the track: a failed fit leaves no track, so indices may shift)."""
     params = np.array(tracks.parameters, dtype=float).reshape(-1, 6)
     covs = np.array(tracks.covariance, dtype=float).reshape(-1, 6, 6)
-    return params, covs
+    n_meas = np.array(tracks.nMeasurements, dtype=np.int64)
+    last = np.array([list(tracks.getTrack(i).outermostTrackState.effectiveCalibrated)[:2]
+                     for i in range(len(tracks))], dtype=float).reshape(-1, 2)
+    return params, covs, n_meas, last
 
 
 def acts_state_to_pkf(params, cov):
@@ -351,15 +367,22 @@ def acts_rows(sample: TruthSample, electrons: TruthSample, repeat: int, bethe_he
         truth = smp.truth[smp.batch.hit_row[first]]
         state = np.full((n, 5), np.nan)
         cov = np.full((n, 5, 5), np.nan)
-        # a failed ACTS fit leaves no track: match each fitted track to the track whose
-        # first hit is nearest in (x, y) (tracks are mm apart, the fit is µm close)
-        first_xy = np.column_stack([smp.hits["u"][smp.batch.hit_row[first]], smp.hits["v"][smp.batch.hit_row[first]]])
-        for p, c in zip(res["parameters"], res["covariances"]):
-            i = int(np.argmin(np.sum((first_xy - p[:2]) ** 2, axis=1)))
-            state[i], cov[i] = acts_state_to_pkf(p, c)
+        # a failed ACTS fit leaves no track: identify each fitted track by its outermost
+        # measurement (the same numbers as the track's last hit)
+        last = smp.batch.offsets[1:] - 1
+        last_xy = np.column_stack([smp.hits["u"][smp.batch.hit_row[last]], smp.hits["v"][smp.batch.hit_row[last]]])
+        order = np.lexsort(last_xy.T[::-1])
+        pos = np.searchsorted(last_xy[order, 0], res["outermost_xy"][:, 0])
+        track = order[np.minimum(pos, n - 1)]
+        same = np.all(last_xy[track] == res["outermost_xy"], axis=1)
+        all_hits = same & (res["n_measurements"] == smp.batch.n_nodes[track])
+        for j in np.flatnonzero(same):
+            state[track[j]], cov[track[j]] = acts_state_to_pkf(res["parameters"][j], res["covariances"][j])
+        fewer = int((~all_hits[same]).sum())
         ok = np.all(np.isfinite(state), axis=1)
         rows[name] = {"tracks": n, "us_per_track": 1e6 * res["cpu_s"] / n, "ok_fraction": float(ok.mean()),
-                      "event_cpu_s": res["event_cpu_s"], "pull_core": pull_cores(state, cov, truth, ok)}
+                      "fitted_with_fewer_measurements_than_hits": fewer,
+                      "event_cpu_s": res["event_cpu_s"], "pull_core": pull_cores(state, cov, truth, ok & starts_on_first_plane(smp))}
     return rows
 
 
@@ -404,10 +427,11 @@ def main() -> None:
                         "timing": "time.process_time of the fit alone, one thread, best of repeat after warm-up"}
     print(f"{len(pions.batch.offsets) - 1} pion tracks (GSF: {electrons.batch.n_tracks} electron tracks), "
           f"telescope, one thread, CPU µs per track (best of {args.repeat})")
-    print(f"{'fitter':<26}{'µs/track':>10}{'ok':>8}{'q/p pull':>10}{'x pull':>9}")
+    print(f"{'fitter':<26}{'µs/track':>10}{'ok':>8}{'q/p pull':>10}{'x pull':>9}{'δ(q/p)/(q/p)':>14}")
     for name, row in r.items():
         print(f"{name:<26}{row['us_per_track']:>10.1f}{100 * row['ok_fraction']:>7.1f}%"
-              f"{row['pull_core']['qop']:>10.3f}{row['pull_core']['x']:>9.3f}")
+              f"{row['pull_core']['qop']:>10.3f}{row['pull_core']['x']:>9.3f}"
+              f"{100 * row['pull_core']['dqop_over_qop']:>13.3f}%")
     for name, value in results["ratios_pkf_over_acts"].items():
         print(f"{name:<32}{value:>7.2f}")
     if args.json:
