@@ -14,7 +14,9 @@ added variance (q/p′)²·σ_b²/μ_b² (the linearisation of q/p / z); upstrea
 filter, q/p′ = q/p·z, exact) mean q/p·μ_b, Jacobian μ_b, added variance (q/p)²·σ_b².
 (E = p for electrons above 100 MeV to 1e−5.) Ionisation, then bremsstrahlung, in both
 directions (the physical order upstream is the reverse; the difference in q/p is
-ΔE_ion·(1 − z)/p, below 2e−4 relative even for a hard radiation at 1 GeV).
+ΔE_ion·(1 − z)/p, below 2e−4 relative even for a hard radiation at 1 GeV). A component
+whose particle stops in a plane (E − ΔE ≤ m, a few-MeV hypothesis) is dropped; a track
+all of whose components stop gets the status "extrapolation failed", as in the Kalman fit.
 
 After every plane the mixture is reduced: components with weight < `weight_cut`
 (1e−4) are dropped, then the closest pair in the symmetric Kullback–Leibler distance of
@@ -577,7 +579,8 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
 def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
     """Material of plane k for every component of (w, mu, cov)[:n], written into
     (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
-    Bethe–Heitler convolution. Returns the number of output components."""
+    Bethe–Heitler convolution. A component whose particle stops in the plane (q/p → ±inf)
+    is dropped. Returns the number of output components (0 if every one stopped)."""
     ref = ctx.ref
     out = 0
     for c in range(n):
@@ -593,6 +596,8 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                                 ref.plane_hole_half_x[k], ref.plane_hole_half_y[k], ref.plane_side[k],
                                 ref.plane_side_overlap[k])
         add_plane_material(ref, k, mu[c], direction, jm, noise)
+        if not math.isfinite(mu[c, 4]):
+            continue  # this hypothesis stops in the plane (E − ΔE ≤ m): it is dropped
         d = jm[4, 4]
         pc = cov[c]
         for i in range(5):
