@@ -308,3 +308,25 @@ def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
     assert np.all(np.einsum("nii->ni", result.node_cov) > 0.0)
     # at 3.9 MeV the scattering lets the states follow the hits (12.5 µm)
     assert np.all(np.abs(result.node_state[:rows.size, :2] - uv) < 0.05)
+
+
+def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
+    """A seed covariance with no q/p variance divided by zero when the forward filter
+    widened it (ZeroDivisionError, the run aborted): the widened width replaces it, as
+    for a seed with a negligible one."""
+    from pkf.fit.tracks import TrackBatch
+
+    geometry = load_geometry("lhcb-like")
+    layers = np.array([int(np.flatnonzero(np.isclose(geometry.layer_z, z))[0]) for z in _STOPPING_TRACK_Z])
+    uv = np.array(_STOPPING_TRACK_UV)
+    rows = np.arange(layers.size)
+    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2), layers,
+                                       uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
+                                       np.full(rows.size, 0.0125), 2)
+    seeds = np.array([_STOPPING_TRACK_SEED, _STOPPING_TRACK_SEED])
+    seeds[:, 4] = -1.0 / 1000.0
+    seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 0.0]), (2, 1, 1))
+    seed_covs[1, 4, 4] = 1e-300
+    result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
+    assert list(result.status) == [0, 0]
+    np.testing.assert_allclose(result.node_state[:rows.size], result.node_state[rows.size:], rtol=1e-9)
