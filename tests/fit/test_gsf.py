@@ -267,3 +267,66 @@ def test_max_components_reaches_the_gsf(tmp_path, capsys):
     assert main(["reconstruct", str(data), "--out", str(tmp_path / "bad"), "--pattern", "truth", "--fitter", "gsf",
                  "--max-components", "0"]) == 2
     assert "--max-components" in capsys.readouterr().err
+
+
+# A VELO-only track of a minimum-bias event (`pkf simulate --generator minbias --pileup 2
+# --events 50 --seed 3`, partition of events 15-19) whose seed q/p says 3.9 MeV: under the
+# electron hypothesis some mixture components stop in a VELO module (E − ΔE ≤ m).
+_STOPPING_TRACK_Z = (37.5, 62.5, 87.5, 112.5, 137.5, 162.5, 187.5, 212.5, 237.5, 262.5, 312.5)
+_STOPPING_TRACK_UV = ((-4.277827687650552, -3.3409329316726017), (-7.311386474901954, -5.549341402503658),
+                      (-10.283078942281882, -7.744924504653722), (-13.420363797648863, -9.91816285974681),
+                      (-16.685759373865157, -12.137825922407576), (-19.849973538121823, -14.28218636465747),
+                      (-23.205174241172752, -16.380047591746493), (-26.554731302366296, -18.379201913674848),
+                      (-30.00168429112829, -20.480125076608193), (-33.58669279718092, -22.476185337215316),
+                      (-40.79008032079846, -26.426311382044023))
+_STOPPING_TRACK_SEED = (-4.209848300979843, -3.5685078338222156, -0.12076103340782218, -0.08408610320514903,
+                        -0.2565891440557948)
+
+
+def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
+    """Issue 13 case 3: a component whose particle stops in a plane (q/p → ±inf, its
+    Jacobian inf·0 = NaN) was kept, merged into its neighbours, and a NaN-weighted peak
+    then divided 0 by 0 (ZeroDivisionError: the whole run aborted). Now it is dropped
+    (if every component stops, the track gets the status "extrapolation failed"): this
+    track is fitted by the components that do not stop (as the same hits at 1 GeV are)."""
+    from pkf.fit.tracks import TrackBatch
+
+    geometry = load_geometry("lhcb-like")
+    layers = np.array([int(np.flatnonzero(np.isclose(geometry.layer_z, z))[0]) for z in _STOPPING_TRACK_Z])
+    uv = np.array(_STOPPING_TRACK_UV)
+    rows = np.arange(layers.size)
+    seeds = np.array([_STOPPING_TRACK_SEED, _STOPPING_TRACK_SEED])
+    seeds[1, 4] = -1.0 / 1000.0  # the same hits as a 1 GeV electron: fitted
+    seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 6.664383619255776e-04]), (2, 1, 1))
+    seed_covs[1, 4, 4] = 1e-6
+    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2),
+                                       layers, uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
+                                       np.full(rows.size, 0.0125), 2)
+    result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
+    assert list(result.status) == [0, 0]
+    assert np.all(np.isfinite(result.node_state)) and np.all(np.isfinite(result.chi2))
+    assert np.all(np.einsum("nii->ni", result.node_cov) > 0.0)
+    # at 3.9 MeV the scattering lets the states follow the hits (12.5 µm)
+    assert np.all(np.abs(result.node_state[:rows.size, :2] - uv) < 0.05)
+
+
+def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
+    """A seed covariance with no q/p variance divided by zero when the forward filter
+    widened it (ZeroDivisionError, the run aborted): the widened width replaces it, as
+    for a seed with a negligible one."""
+    from pkf.fit.tracks import TrackBatch
+
+    geometry = load_geometry("lhcb-like")
+    layers = np.array([int(np.flatnonzero(np.isclose(geometry.layer_z, z))[0]) for z in _STOPPING_TRACK_Z])
+    uv = np.array(_STOPPING_TRACK_UV)
+    rows = np.arange(layers.size)
+    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2), layers,
+                                       uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
+                                       np.full(rows.size, 0.0125), 2)
+    seeds = np.array([_STOPPING_TRACK_SEED, _STOPPING_TRACK_SEED])
+    seeds[:, 4] = -1.0 / 1000.0
+    seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 0.0]), (2, 1, 1))
+    seed_covs[1, 4, 4] = 1e-300
+    result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
+    assert list(result.status) == [0, 0]
+    np.testing.assert_allclose(result.node_state[:rows.size], result.node_state[rows.size:], rtol=1e-9)

@@ -81,3 +81,54 @@ def test_dataset_without_mc(dataset, run, tmp_path):
     np.testing.assert_array_equal(np.array(chi2["chi2"]), np.array(with_mc["chi2"]))  # NaN where failed
     assert read_table(out, CANDIDATES, name="candidates").equals(read_table(run, CANDIDATES, name="candidates"))
     assert read_table(out, STATES, name="states").equals(read_table(run, STATES, name="states"))
+
+
+def _hit_columns(dataset):
+    import pyarrow.parquet as pq
+
+    hits = pq.read_table(dataset / "hits.parquet")
+    return [hits.column(c).to_numpy() for c in ("event_id", "layer", "u", "v", "z", "sigma_u", "sigma_v")]
+
+
+def test_events_searched_in_groups_give_the_same_candidates(dataset):
+    """Issue 13 case 17: the pattern runs in groups of whole events (Python sees a Ctrl-C
+    between them); an event's candidates depend only on its hits, so any grouping gives
+    the same candidates as one search of the whole chunk."""
+    from pkf.geometry import load_geometry
+    from pkf.params.parameter_set import shipped_parameters
+    from pkf.pipeline.triplet_pattern import triplet_candidates
+
+    geometry = load_geometry("lhcb-like")
+    ext = shipped_parameters(geometry).extrapolator(geometry)
+    columns = _hit_columns(dataset)
+    whole = triplet_candidates(geometry, ext, *columns, group_hits=10**12)
+    each_event = triplet_candidates(geometry, ext, *columns, group_hits=1)
+    pairs = triplet_candidates(geometry, ext, *columns, group_hits=int(np.bincount(columns[0]).max()) * 2)
+    assert whole[0].size > 1000 and np.unique(whole[0]).size == 6
+    for other in (each_event, pairs):
+        for a, b in zip(whole, other):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_an_event_above_the_hit_limit_is_counted_and_not_searched(dataset, tmp_path, monkeypatch, capsys):
+    """Issue 13 case 17: an event with more hits than the pattern's occupancy limit gets no
+    candidates, the run goes on, run.json counts it and stderr says so (a 1 M-hit event
+    ran for minutes: the search's cost per hit grows with the occupancy)."""
+    from pkf.pipeline import triplet_pattern
+
+    event_id = _hit_columns(dataset)[0]
+    sizes = np.bincount(event_id)
+    limit = int(np.median(sizes))
+    crowded = np.flatnonzero(sizes > limit)
+    assert 0 < crowded.size < 6
+    monkeypatch.setattr(triplet_pattern, "MAX_EVENT_HITS", limit)
+    out = tmp_path / "run"
+    assert main(["reconstruct", str(dataset), "--out", str(out), "--fitter", "parametrized", "--workers", "1"]) == 0
+    info = json.loads((out / "run.json").read_text())
+    assert info["counts"]["events_over_hit_limit"] == crowded.size
+    assert info["counts"]["events_over_hit_limit_ids"] == crowded.tolist()
+    candidates = read_table(out, CANDIDATES, name="candidates").to_pydict()
+    searched = np.unique(candidates["event_id"])
+    assert set(searched.tolist()) == set(range(6)) - set(crowded.tolist())
+    err = capsys.readouterr().err
+    assert f"{crowded.size} event(s) with more than {limit} hits not searched" in err

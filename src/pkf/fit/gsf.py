@@ -14,7 +14,9 @@ added variance (q/p′)²·σ_b²/μ_b² (the linearisation of q/p / z); upstrea
 filter, q/p′ = q/p·z, exact) mean q/p·μ_b, Jacobian μ_b, added variance (q/p)²·σ_b².
 (E = p for electrons above 100 MeV to 1e−5.) Ionisation, then bremsstrahlung, in both
 directions (the physical order upstream is the reverse; the difference in q/p is
-ΔE_ion·(1 − z)/p, below 2e−4 relative even for a hard radiation at 1 GeV).
+ΔE_ion·(1 − z)/p, below 2e−4 relative even for a hard radiation at 1 GeV). A component
+whose particle stops in a plane (E − ΔE ≤ m, a few-MeV hypothesis) is dropped; a track
+all of whose components stop gets the status "extrapolation failed", as in the Kalman fit.
 
 After every plane the mixture is reduced: components with weight < `weight_cut`
 (1e−4) are dropped, then the closest pair in the symmetric Kullback–Leibler distance of
@@ -108,6 +110,11 @@ per track with at most 4 / 8 / 12 / 16 components (≈ n^1.3), 8.9 ms at 12 with
 Jacobian per component, 0.24 ms for the reference Kalman fit. Sharing changes the output
 states by 0.005σ (x, y, tx, ty) and 0.13σ (q/p) RMS at the first hit, up to 0.26σ in q/p
 at the last hit (the KL reduction follows small differences), with the same resolutions.
+
+Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
+division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
+the whole run, issue 13), and a track whose output state, covariance or χ² is not
+finite gets a failure status ("covariance not positive definite").
 
 For a hypothesis other than the electron (no bremsstrahlung), the mixture keeps one
 component and the GSF is a Kalman filter with forward filter, independent backward
@@ -233,14 +240,14 @@ class GsfResult(FitResult):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def _copy_component(w, mu, cov, i, w2, mu2, cov2, j):
     w2[j] = w[i]
     copy5(mu[i], mu2[j])
     copy55(cov[i], cov2[j])
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def _kl_distance(mu, cov, i, j):
     """Symmetric Kullback–Leibler distance of the q/p marginals of components i and j (ACTS)."""
     vi = cov[i, 4, 4]
@@ -249,7 +256,7 @@ def _kl_distance(mu, cov, i, j):
     return (vi - vj) * (1.0 / vj - 1.0 / vi) + d * d * (1.0 / vi + 1.0 / vj)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _merge_into(w, mu, cov, i, j):
     """Component i ← moment-matched merge of components i and j."""
     wi = w[i]
@@ -270,7 +277,7 @@ def _merge_into(w, mu, cov, i, j):
     w[i] = wt
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _normalise_and_cut(w, mu, cov, n, cut):
     """Normalise the weights, drop components below `cut` (keeping the largest), compact.
     Returns the new number of components (0 if no weight is positive)."""
@@ -299,7 +306,7 @@ def _normalise_and_cut(w, mu, cov, n, cut):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
     compacts and returns the new count."""
@@ -359,7 +366,7 @@ def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _collapse(w, mu, cov, n, out_mean, out_cov):
     """Mean and covariance of the mixture (moment matching)."""
     total = 0.0
@@ -373,7 +380,7 @@ def _collapse(w, mu, cov, n, out_mean, out_cov):
     _second_moment(w, mu, cov, n, out_mean, out_cov)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _second_moment(w, mu, cov, n, centre, out_cov):
     """Covariance of the mixture about `centre`: Σ w_c·(P_c + (μ_c − centre)(μ_c − centre)ᵀ)."""
     total = 0.0
@@ -387,7 +394,7 @@ def _second_moment(w, mu, cov, n, centre, out_cov):
             out_cov[k, l] = s / total
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
     """The mixture's peak around component `mode`: the moment-matched merge of the
     components whose q/p is compatible with the mode's, |μ_j − μ_m| ≤ window·√(v_j + v_m)."""
@@ -415,7 +422,7 @@ def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
                     out_cov[k, l] += a * (cov[c, k, l] + (mu[c, k] - out_mean[k]) * (mu[c, l] - out_mean[l]))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _largest(w, n):
     best = 0
     for c in range(1, n):
@@ -424,7 +431,7 @@ def _largest(w, n):
     return best
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _mode_component(w, mu, cov, n):
     """The component at whose q/p mean the mixture's q/p marginal density is highest."""
     best = 0
@@ -441,7 +448,7 @@ def _mode_component(w, mu, cov, n):
     return best
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     """Output "core": the Gaussian core of the mixture's q/p marginal f and the other
     parameters given q/p at its centre (see the module docstring).
@@ -526,7 +533,7 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians). A component that fails (leaves the
@@ -573,11 +580,12 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
     return alive
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
     """Material of plane k for every component of (w, mu, cov)[:n], written into
     (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
-    Bethe–Heitler convolution. Returns the number of output components."""
+    Bethe–Heitler convolution. A component whose particle stops in the plane (q/p → ±inf)
+    is dropped. Returns the number of output components (0 if every one stopped)."""
     ref = ctx.ref
     out = 0
     for c in range(n):
@@ -593,6 +601,8 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                                 ref.plane_hole_half_x[k], ref.plane_hole_half_y[k], ref.plane_side[k],
                                 ref.plane_side_overlap[k])
         add_plane_material(ref, k, mu[c], direction, jm, noise)
+        if not math.isfinite(mu[c, 4]):
+            continue  # this hypothesis stops in the plane (E − ΔE ≤ m): it is dropped
         d = jm[4, 4]
         pc = cov[c]
         for i in range(5):
@@ -632,7 +642,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _propagate(ctx, direction, z_from, z_to, buf, n, nearest, nearest_d, alive, scratch, bh):
     """Transport the mixture buf[0] (n components) from z_from to z_to through the material
     planes in (min z, max z] with the Bethe–Heitler convolution and a reduction after
@@ -673,7 +683,7 @@ def _propagate(ctx, direction, z_from, z_to, buf, n, nearest, nearest_d, alive, 
     return _normalise_and_cut(w, mu, cov, n, 0.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     """Per-component Kalman update with node (n_meas, hx, hy, m, sigma) and weight
     re-scaling by the predictive likelihoods. Returns the new component count."""
@@ -699,7 +709,7 @@ def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     return _normalise_and_cut(w, mu, cov, n, weight_cut)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     """χ² increment of the node with the collapsed predicted mixture (−1 on failure)."""
     _collapse(w, mu, cov, n, mean, cmat)
@@ -712,7 +722,7 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     return chi2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, nearest_d, alive,
              out_mean, out_cov, scratch, vec):
     """Product of the forward-predicted and backward-filtered mixtures at a node into
@@ -780,7 +790,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     return _summarise(ctx, pw, pmu, pcov, n, nearest, nearest_d, alive, out_mean, out_cov)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _summarise(ctx, w, mu, cov, n, nearest, nearest_d, alive, out_mean, out_cov):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
     its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
@@ -798,7 +808,7 @@ def _summarise(ctx, w, mu, cov, n, nearest, nearest_d, alive, out_mean, out_cov)
     return n
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def _keep_qop_mixture(w, mu, cov, n, out):
     """Store the q/p marginal (weight, mean [1/MeV], variance) of (w, mu, cov)[:n] in out
     (K, 3) when out has rows (K ≥ n), padding with zero weights."""
@@ -815,7 +825,7 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
                buf, pbuf, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
@@ -835,10 +845,16 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     copy55(seed_cov, cov[0])
     wide = (ctx.seed_qop_fraction * seed[4]) ** 2
     if ctx.bethe_heitler and wide > cov[0, 4, 4]:
-        scale = math.sqrt(wide / cov[0, 4, 4])
-        for i in range(5):
-            cov[0, 4, i] *= scale
-            cov[0, i, 4] *= scale
+        if cov[0, 4, 4] > 0.0:
+            scale = math.sqrt(wide / cov[0, 4, 4])
+            for i in range(5):
+                cov[0, 4, i] *= scale
+                cov[0, i, 4] *= scale
+        else:  # a seed without q/p variance: the widened width alone
+            for i in range(5):
+                cov[0, 4, i] = 0.0
+                cov[0, i, 4] = 0.0
+            cov[0, 4, 4] = wide
     nc = 1
     for k in range(n):
         if k > 0:
@@ -895,10 +911,12 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
         for i in range(5):
             if not (out_cov[k, i, i] > 0.0 and math.isfinite(out_state[k, i])):
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+    if not math.isfinite(chi2):
+        return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
     return STATUS_OK, chi2, n_first
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
                    outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status,
                    out_chi2, out_ndf, out_n_outliers, out_n_components, out_qop_mixture):

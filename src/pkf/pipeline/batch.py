@@ -33,9 +33,10 @@ from pkf.io.schemas import (
     table_from_columns,
 )
 from pkf.params.parameter_set import load_parameters
+from pkf.pipeline import triplet_pattern
 from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
 from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
-from pkf.pipeline.triplet_pattern import triplet_candidates
+from pkf.pipeline.triplet_pattern import crowded_events, triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
 
 RUN_TABLES = ("candidates", "chi2", "states", "pulls")
@@ -176,7 +177,10 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         (tables, summary): the batch's rows per run table (sorted by event, track,
         fitter, location) and its summary: ``events``, ``hits``, ``candidates``,
         ``tracks`` per fitter, ``timing`` per stage (wall_s, cpu_s), ``fit`` per
-        fitter (wall_s, tracks, nodes) and, with MC, ``pattern``/``velo`` counts.
+        fitter (wall_s, tracks, nodes), with MC ``pattern``/``velo`` counts, and
+        ``events_over_hit_limit`` (events, limit, first event ids) if the triplet pattern
+        left events above its occupancy limit unsearched
+        (`pkf.pipeline.triplet_pattern.MAX_EVENT_HITS`).
     """
     geometry = ctx.geometry
     chunk = data.hits
@@ -195,6 +199,11 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         if ctx.pattern == "truth":
             cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle)
         else:
+            crowded = crowded_events(ev)
+            if crowded.size:  # not searched: counted, reported in run.json and on stderr
+                summary["events_over_hit_limit"] = {"events": int(crowded.size),
+                                                    "limit": triplet_pattern.MAX_EVENT_HITS,
+                                                    "event_ids": crowded[:10].tolist()}
             cand_event, cand_track, cand_row = triplet_candidates(
                 geometry, ctx.pattern_ext, ev, layer, column(chunk, "u"), column(chunk, "v"),
                 column(chunk, "z"), column(chunk, "sigma_u"), column(chunk, "sigma_v"))

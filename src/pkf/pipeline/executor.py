@@ -173,10 +173,23 @@ def _execute_local(tasks, workers, on_done) -> None:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
                     on_done(future.result())
-        except BaseException:
-            for future in pending:
-                future.cancel()
+        except BaseException:  # Ctrl-C or a failed partition: stop now, not after the running ones
+            pool.shutdown(wait=False, cancel_futures=True)
+            _terminate_workers(pool)
             raise
+
+
+def _terminate_workers(pool) -> None:
+    """Stop a ProcessPoolExecutor's worker processes now: a worker inside a compiled kernel
+    would otherwise finish its partition first (minutes for a large one). Their partitions
+    are not journaled, so a rerun does them again. Python ≥ 3.14 has this as
+    ``terminate_workers``; before, the processes are the executor's ``_processes``."""
+    if hasattr(pool, "terminate_workers"):
+        pool.terminate_workers()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.is_alive():
+            process.terminate()
 
 
 #: Seconds to wait for a Dask scheduler to answer.

@@ -24,6 +24,7 @@ import pkf
 from pkf.errors import InputError
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
 from pkf.io.stream import file_sha256
+from pkf.pipeline import triplet_pattern
 from pkf.pipeline.batch import metrics_from_counts
 from pkf.pipeline.config import ReconstructionConfig
 from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
@@ -126,6 +127,11 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
         w["events_per_s"] = w["events_processed"] / work_wall if work_wall > 0 and todo else None
         atomic_write_json(run, staging.path / "run.json")
         staging.finish()
+    crowded = run["counts"]["events_over_hit_limit"]
+    if crowded and echo:
+        echo(f"pkf: warning: {crowded} event(s) with more than {triplet_pattern.MAX_EVENT_HITS} hits not "
+             f"searched by the triplet pattern (its cost per hit grows with the occupancy): event ids "
+             f"{run['counts']['events_over_hit_limit_ids']}, counted in run.json counts.events_over_hit_limit")
     return run
 
 
@@ -133,7 +139,9 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
     """run.json from the partitions' journal entries, summed in partition order."""
     entries = [done[p.name] for p in plan.partitions]
     fitters = list(run_config["fitters"])
-    counts = {"events": 0, "hits": 0, "candidates": 0, "tracks": {f: 0 for f in fitters}}
+    counts = {"events": 0, "hits": 0, "candidates": 0, "tracks": {f: 0 for f in fitters},
+              "events_over_hit_limit": 0}
+    crowded_ids: list = []
     timing: dict = {}
     fit = {f: {"wall_s": 0.0, "tracks": 0, "nodes": 0} for f in fitters}
     pattern = {"pattern": None, "velo": None}
@@ -141,6 +149,9 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
         s = e["summary"]
         for k in ("events", "hits", "candidates"):
             counts[k] += s[k]
+        if "events_over_hit_limit" in s:
+            counts["events_over_hit_limit"] += s["events_over_hit_limit"]["events"]
+            crowded_ids += s["events_over_hit_limit"]["event_ids"]
         for f in fitters:
             counts["tracks"][f] += s["tracks"][f]
             for k in fit[f]:
@@ -167,6 +178,8 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
                         "hits_rows": list(p.hits_rows), "files": done[p.name]["files"]}
                        for p in plan.partitions],
     }
+    if crowded_ids:
+        run["counts"]["events_over_hit_limit_ids"] = crowded_ids[:10]
     if plan.has_mc and pattern["pattern"] is not None:
         run["pattern"] = metrics_from_counts(pattern["pattern"])
         run["pattern"]["definition"] = ("long tracks (with SciFi hits) against long-reconstructible "
