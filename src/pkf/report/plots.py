@@ -231,12 +231,13 @@ def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
             ax.set_ylim(0, 1.3 * max(float(h.values().max()), 1.0))
             ax.legend(fontsize=18, loc="upper right")
         axes.flat[-1].axis("off")
-        axes.flat[-1].text(0.0, 0.6, f"{name}\npulls at the first hit\n(fit − true)/σ", fontsize=26,
+        axes.flat[-1].text(0.0, 0.6, f"{name}\npulls at the first hit\nlong tracks\n(fit − true)/σ", fontsize=26,
                            transform=axes.flat[-1].transAxes, va="center")
         file = plot_file_name("pulls", name, taken)
         _save(fig, out / file)
-        plots.append(Plot(file, f"Pulls of {name} at the first hit with the Gaussian core fit "
-                                f"(iterative ±3σ, unbinned); mean, width and RMS in the legend."))
+        plots.append(Plot(file, f"Pulls of {name} at the first hit, long tracks (other track types: table "
+                                f"and summary.json pulls.by_type), with the Gaussian core fit (iterative ±3σ, "
+                                f"unbinned) where a Gaussian describes the core; mean, width and RMS in the legend."))
     return plots
 
 
