@@ -504,6 +504,13 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                 check(zero_length, group[0], lambda row, group=group, why=why:
                       f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "
                       f"of length 0: must be > 0 ({why})")
+        if spec.noise_truth is not None:  # before null_together: the clearer message for a particle's row
+            truth_columns, particle = spec.noise_truth
+            of_particle = pc.not_equal(table.column(particle), 0)
+            for name in truth_columns:
+                check(lambda c=name: pc.and_(of_particle, pc.is_null(table.column(c))), name,
+                      lambda row, p=particle: f"is null on a particle's hit ({p}={value(p, row)}): only noise "
+                                              f"hits ({p} 0) may lack truth")
         for group in spec.null_together:
             def nulls_of(group=group):
                 return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
@@ -520,14 +527,6 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
 
             checks.append(lambda group=group, partly_null=partly_null, not_together=not_together:
                           _raise_partly_null(source, table, key, group, partly_null(), not_together))
-
-    if spec is not None and spec.noise_truth is not None:
-        truth_columns, particle = spec.noise_truth
-        of_particle = pc.not_equal(table.column(particle), 0)
-        for name in truth_columns:
-            check(lambda c=name: pc.and_(of_particle, pc.is_null(table.column(c))), name,
-                  lambda row, p=particle: f"is null on a particle's hit ({p}={value(p, row)}): only noise "
-                                          f"hits ({p} 0) may lack truth")
 
     if "event_id" in table.column_names:
         events = pc.fill_null(table.column("event_id"), 0).to_numpy()  # a null is reported as null
