@@ -111,6 +111,12 @@ def test_no_meta_json_with_geometry_option(foreign, pkf_run, tmp_path, capsys):
     assert run["input"]["geometry_from"] == "--geometry lhcb-like"
     assert run["input"]["geometry_hash"] == load_geometry("lhcb-like").content_hash
     assert run["config"]["geometry"] == "lhcb-like"
+    # the report reads the run's dataset with the run's --geometry (before: "not a dataset (no meta.json)")
+    from pkf.pipeline.report import load_truth
+    from pkf.report.runs import load_run
+
+    truth = load_truth(load_run(tmp_path / "run"))
+    assert (truth.status, truth.n_events) == ("ok", 10)
 
 
 @pytest.mark.parametrize("command", ["reconstruct", "tune", "validate"])
