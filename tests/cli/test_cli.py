@@ -39,7 +39,6 @@ def test_simulate_writes_a_dataset(tmp_path, capsys):
         (["--pileup", "-1"], "--pileup"),
         (["--p-min", "5000", "--p-max", "100"], "--p-min"),
         (["--events", "ten"], "--events"),
-        (["--generator", "pythia"], "not built yet"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):

@@ -29,7 +29,8 @@ from pkf.simulation.generators import (
     generate_gun,
     generate_minbias,
 )
-from pkf.simulation.response import simulate_response
+from pkf.simulation.pythia import PYTHIA_GENERATORS, PythiaSettings, pythia_event_generator, require_pythia
+from pkf.simulation.response import decay_z, simulate_response
 from pkf.simulation.species import SPECIES_NAMES
 
 #: Events transported per compiled call (bounded memory; does not change the output).
@@ -57,11 +58,7 @@ class SimulationConfig:
         """Raise InputError (one line) for an impossible configuration."""
         if self.generator not in GENERATORS:
             raise InputError(f"--generator: unknown generator {self.generator!r} (one of {', '.join(GENERATORS)})")
-        if self.generator == "pythia":
-            raise InputError(
-                "--generator pythia: not built yet (needs the optional pythia8mc extra and the "
-                "Pythia interface of a later issue); use minbias, gun or bs2phiphi"
-            )
+        require_pythia(self.generator)
         if self.events <= 0:
             raise InputError(f"--events: must be a positive number of events, not {self.events}")
         if not self.pileup > 0:
@@ -79,6 +76,9 @@ class SimulationConfig:
 
 
 def _event_generator(config: SimulationConfig):
+    if config.generator in PYTHIA_GENERATORS:
+        settings = PythiaSettings(pileup=config.pileup, luminous_region=config.luminous_region)
+        return pythia_event_generator(config.generator, settings)
     minbias = MinBiasSettings(pileup=config.pileup, luminous_region=config.luminous_region)
     if config.generator == "minbias":
         return lambda rng: generate_minbias(rng, minbias)
@@ -123,7 +123,7 @@ def simulate_batch(
     ])
     records = simulate_response(
         geometry, transport_seeds, offsets, state, cols["vz"], cols["mass"], cols["charge"],
-        np.abs(cols["pdg"]) == 11,
+        np.abs(cols["pdg"]) == 11, stop_z=decay_z(offsets, cols["parent_id"], cols["vz"]),
     )
 
     event_id = first_event + np.arange(n_events, dtype=np.int64)

@@ -10,7 +10,8 @@ closed after saving.
 Files: ``resolution.png`` (δp/p, x, tx vs p per fitter with the ratio to the
 reference), ``pulls_<fitter>.png`` (five pull histograms with the Gaussian core
 fits), ``chi2.png`` (χ²/ndf real vs ghost per fitter + efficiency / rejection),
-``mass.png`` (B_s mass peak with fit per fitter), ``efficiency.png`` (efficiency
+``mass.png`` (B_s mass peak with fit per entry), ``timing.png`` (tracks/s and speed-up per
+entry), ``efficiency.png`` (efficiency
 vs p and η). A plot whose data are missing is not written; the HTML says why.
 """
 
@@ -381,10 +382,43 @@ def _plot_efficiency(data: ReportData, out: Path) -> list[Plot]:
     return [Plot("efficiency.png", caption)]
 
 
+def _plot_timing(data: ReportData, out: Path) -> list[Plot]:
+    """Fit speed per entry: tracks per CPU second of the fit kernels and the speed-up over the
+    reference entry."""
+    names = [n for n in data.entry_order if data.summary["entries"][n]["timing"]["available"]
+             and data.summary["entries"][n]["timing"]["tracks_per_s"]]
+    if not names:
+        return []
+    colors = _colors(data.entry_order)
+    timing = [data.summary["entries"][n]["timing"] for n in names]
+    rate = np.array([t["tracks_per_s"] for t in timing], dtype=float)
+    speed_up = np.array([np.nan if t["speed_up_vs_reference"] is None else t["speed_up_vs_reference"]
+                         for t in timing], dtype=float)
+    fig, axes = plt.subplots(1, 2, figsize=(26, max(6, 1.2 * len(names) + 3)), gridspec_kw={"wspace": 0.45})
+    y = np.arange(len(names))
+    for ax, values, label in ((axes[0], rate, "tracks / CPU second of the fit"),
+                              (axes[1], speed_up, f"speed-up over {data.summary['reference']}")):
+        ax.barh(y, np.nan_to_num(values), color=[colors[n] for n in names])
+        for yi, v in zip(y, values):
+            if np.isfinite(v):
+                ax.text(v, yi, f" {v:,.0f}" if v >= 100 else f" {v:.2f}", va="center", fontsize=18)
+        ax.set_yticks(y, names, fontsize=18)
+        ax.invert_yaxis()
+        ax.set_xlabel(label)
+    axes[0].set_xlim(0, 1.3 * np.nanmax(rate))
+    finite = speed_up[np.isfinite(speed_up)]
+    axes[1].set_xlim(0, 1.25 * max(finite.max() if finite.size else 1.0, 1.0))
+    axes[1].axvline(1.0, color="grey", ls="--", lw=1.5)
+    _save(fig, out / "timing.png")
+    caption = ("Fit speed per entry (run.json timing.fit, after JIT warm-up): tracks per CPU second of the fit "
+               "kernels summed over workers, and the speed-up over the reference entry (fair within one run).")
+    return [Plot("timing.png", caption)]
+
+
 def make_plots(data: ReportData, out: Path) -> dict[str, list[Plot]]:
     """Write every plot of the report into ``out``; per section id, the plots written."""
     out = Path(out)
-    taken = {"resolution.png", "chi2.png", "mass.png", "efficiency.png"}
+    taken = {"resolution.png", "chi2.png", "mass.png", "efficiency.png", "timing.png"}
     with plt.style.context(_STYLE):
         return {
             "resolution": _plot_resolution(data, out),
@@ -392,5 +426,5 @@ def make_plots(data: ReportData, out: Path) -> dict[str, list[Plot]]:
             "chi2": _plot_chi2(data, out),
             "mass": _plot_mass(data, out),
             "efficiency": _plot_efficiency(data, out),
-            "timing": [],
+            "timing": _plot_timing(data, out),
         }

@@ -20,9 +20,9 @@ from pkf.simulation.species import (
     species_arrays,
 )
 
-GENERATORS = ("minbias", "gun", "bs2phiphi", "pythia")
+GENERATORS = ("minbias", "gun", "bs2phiphi", "pythia", "pythia-bs2phiphi")
 
-_PARTICLE_COLUMNS = (
+PARTICLE_COLUMNS = (
     ("pdg", np.int32), ("charge", np.int8), ("mass", np.float64), ("vx", np.float64),
     ("vy", np.float64), ("vz", np.float64), ("px", np.float64), ("py", np.float64),
     ("pz", np.float64), ("parent_id", np.int64), ("interaction", np.int16),
@@ -79,12 +79,13 @@ class GunSettings:
 
 
 def _empty_event() -> dict[str, np.ndarray]:
-    return {name: np.empty(0, dtype=dtype) for name, dtype in _PARTICLE_COLUMNS}
+    return {name: np.empty(0, dtype=dtype) for name, dtype in PARTICLE_COLUMNS}
 
 
-def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+def concat_events(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Concatenate particle-column blocks (parent_id already offset by the caller)."""
     parts = [p for p in parts if p["pdg"].size] or [_empty_event()]
-    return {name: np.concatenate([p[name] for p in parts]).astype(dtype) for name, dtype in _PARTICLE_COLUMNS}
+    return {name: np.concatenate([p[name] for p in parts]).astype(dtype) for name, dtype in PARTICLE_COLUMNS}
 
 
 def _momenta(pt: np.ndarray, eta: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -117,11 +118,17 @@ def generate_minbias(rng: np.random.Generator, settings: MinBiasSettings) -> dic
     return _minbias_with_vertices(rng, settings)[0]
 
 
-def _minbias_with_vertices(rng: np.random.Generator, settings: MinBiasSettings):
+def sample_interaction_vertices(rng: np.random.Generator, pileup: float, region: LuminousRegion) -> np.ndarray:
+    """Vertices [mm], shape (n, 3), of a crossing's pp interactions: n ~ Poisson(pileup)
+    truncated at zero (a crossing with at least one interaction)."""
     n_interactions = 0
     while n_interactions == 0:
-        n_interactions = int(rng.poisson(settings.pileup))
-    vertices = settings.luminous_region.sample(rng, n_interactions)
+        n_interactions = int(rng.poisson(pileup))
+    return region.sample(rng, n_interactions)
+
+
+def _minbias_with_vertices(rng: np.random.Generator, settings: MinBiasSettings):
+    vertices = sample_interaction_vertices(rng, settings.pileup, settings.luminous_region)
     probabilities = np.array([MINBIAS_FRACTIONS[name] for name in SPECIES_NAMES])
     parts = []
     for interaction, vertex in enumerate(vertices):
@@ -132,7 +139,7 @@ def _minbias_with_vertices(rng: np.random.Generator, settings: MinBiasSettings):
         phi = rng.uniform(-np.pi, np.pi, size=n)
         pt = rng.gamma(2.0, settings.pt_mean / 2.0, size=n)
         parts.append(_primaries(rng, species_index, _momenta(pt, eta, phi), vertex, interaction))
-    return _concat(parts), vertices
+    return concat_events(parts), vertices
 
 
 def generate_gun(rng: np.random.Generator, settings: GunSettings) -> dict[str, np.ndarray]:
@@ -210,4 +217,4 @@ def generate_bs2phiphi(rng: np.random.Generator, settings: MinBiasSettings) -> d
     signal = generate_bs2phiphi_decay(rng, vertices[0])
     n_before = underlying["pdg"].size
     signal["parent_id"] = np.where(signal["parent_id"] > 0, signal["parent_id"] + n_before, 0)
-    return _concat([underlying, signal])
+    return concat_events([underlying, signal])

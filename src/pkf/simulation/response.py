@@ -54,7 +54,7 @@ class HitRecords:
 
 @nb.njit(cache=True)
 def _simulate_batch(
-    event_seeds, event_offsets, start_state, start_z, mass, charge, is_electron,
+    event_seeds, event_offsets, start_state, start_z, stop_z, mass, charge, is_electron,
     plane_z, plane_layer, plane_x0, plane_half_x, plane_half_y, plane_hole_r,
     plane_hole_hx, plane_hole_hy, plane_side, plane_overlap,
     layer_kind, layer_cos, layer_sin, layer_sigma, layer_efficiency, layer_noise,
@@ -84,6 +84,8 @@ def _simulate_batch(
                 zp = plane_z[k]
                 if zp <= z:
                     continue
+                if zp > stop_z[ip]:  # decayed before this plane
+                    break
                 # Transport in steps of at most max_step, checking the envelope.
                 alive = True
                 while z < zp:
@@ -182,6 +184,18 @@ def _simulate_batch(
     return n_hits
 
 
+def decay_z(event_offsets: np.ndarray, parent_id: np.ndarray, vz: np.ndarray) -> np.ndarray:
+    """z [mm] where each particle of a batch decays: the smallest production z of its
+    daughters (parent_id: 1-based position within the event, 0 for none), +inf for a
+    particle without daughters. event_offsets: CSR offsets of the events' particles."""
+    stop = np.full(vz.size, np.inf)
+    event = np.repeat(np.arange(event_offsets.size - 1), np.diff(event_offsets))
+    child = parent_id > 0
+    parent_index = event_offsets[event[child]] + parent_id[child] - 1
+    np.minimum.at(stop, parent_index, vz[child])
+    return stop
+
+
 def simulate_response(
     geometry: Geometry,
     event_seeds: np.ndarray,
@@ -192,13 +206,17 @@ def simulate_response(
     charge: np.ndarray,
     is_electron: np.ndarray,
     max_step: float = SIMULATION_MAX_STEP,
+    stop_z: np.ndarray | None = None,
 ) -> HitRecords:
     """Transport a batch of particles and return their hits plus noise hits.
 
     event_seeds: uint32 seed per event; event_offsets: CSR offsets of each event's
     particles; start_state: (n, 5) production state (x, y, tx, ty, qop) at start_z [mm];
-    neutral particles (charge 0) and those with pz ≤ 0 (qop NaN) make no hits.
+    neutral particles (charge 0) and those with pz ≤ 0 (qop NaN) make no hits; stop_z:
+    z [mm] where each particle decays (no hits on planes beyond it), default never.
     """
+    if stop_z is None:
+        stop_z = np.full(start_z.size, np.inf)
     planes = geometry.planes
     layer_plane = np.empty(geometry.n_layers, dtype=np.int64)
     active = planes.layer >= 0
@@ -213,6 +231,7 @@ def simulate_response(
         n = _simulate_batch(
             event_seeds.astype(np.int64), event_offsets.astype(np.int64),
             np.ascontiguousarray(start_state, dtype=np.float64), start_z.astype(np.float64),
+            stop_z.astype(np.float64),
             mass.astype(np.float64), charge.astype(np.int64), is_electron.astype(np.bool_),
             planes.z, planes.layer, planes.x_over_x0, planes.half_x, planes.half_y,
             planes.hole_radius, planes.hole_half_x, planes.hole_half_y, planes.side,
