@@ -43,7 +43,8 @@ class Validation:
         try:
             return step()
         except InputError as exc:
-            self.problems.append(str(exc))
+            if str(exc) not in self.problems:  # e.g. an ambiguous table, found by two checks
+                self.problems.append(str(exc))
             return None
 
     @property
@@ -77,7 +78,8 @@ def validate_dataset(path: str | Path, geometry: str | None = None) -> Validatio
             validate_hit_layers(table, **layer_checks, source=source)
 
     for name, schema in (("hits", HITS), ("particles", PARTICLES), ("mc_hits", MC_HITS)):
-        scan = found.attempt(lambda: _scan(path, name, schema, layer_check if name == "hits" else None))
+        check = layer_check if name == "hits" else None
+        scan = found.attempt(lambda name=name, schema=schema, check=check: _scan(path, name, schema, check))
         if scan is not None:
             found.tables[name] = scan
     found.attempt(lambda: find_truth_tables(path))
