@@ -65,6 +65,9 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--pattern", default="triplet", show_default=True, type=click.Choice(PATTERNS),
               help="Pattern recognition: hit triplets, or ideal grouping by MC particle.")
 @click.option("--params", default=None, help="Parameter file of the parametrized fitter.")
+@click.option("--geometry", default=None, metavar="NAME|FILE.toml",
+              help=f"Detector of the dataset: built-in ({', '.join(BUILTIN_GEOMETRIES)}) or a TOML file. "
+                   "Default: the one its meta.json records (must agree when both are given).")
 @click.option("--outlier-chi2", default=9.0, show_default=True, type=float,
               help="Remove a node whose χ² exceeds this (1-D equivalent).")
 @click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
@@ -107,13 +110,36 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
 @cli.command()
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="Parameter file (JSON) to write.")
+@click.option("--geometry", default=None, metavar="NAME|FILE.toml",
+              help=f"Detector of the dataset: built-in ({', '.join(BUILTIN_GEOMETRIES)}) or a TOML file. "
+                   "Default: the one its meta.json records (must agree when both are given).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
-def tune(dataset: Path, out: Path, overwrite: bool) -> None:
+def tune(dataset: Path, out: Path, geometry: str | None, overwrite: bool) -> None:
     """Tune the parametrized extrapolations on a simulated DATASET (paper §4)."""
     from pkf.pipeline.tune import run_tuning
 
-    run_tuning(dataset, out, overwrite=overwrite, echo=lambda line: click.echo(line, err=True))
+    run_tuning(dataset, out, overwrite=overwrite, echo=lambda line: click.echo(line, err=True), geometry=geometry)
     click.echo(f"wrote {out}")
+
+
+@cli.command()
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--geometry", default=None, metavar="NAME|FILE.toml",
+              help=f"Detector of the dataset: built-in ({', '.join(BUILTIN_GEOMETRIES)}) or a TOML file. "
+                   "Default: the one its meta.json records (must agree when both are given).")
+def validate(dataset: Path, geometry: str | None) -> None:
+    """Check DATASET as reconstruct would, without reconstructing: one line per problem
+    (the first bad row of each table), exit 2 if any."""
+    from pkf.pipeline.validate import validate_dataset
+
+    found = validate_dataset(dataset, geometry)
+    for line in found.warnings:
+        click.echo(f"pkf: warning: {line}", err=True)
+    for line in found.problems:
+        click.echo(f"pkf: error: {line}", err=True)
+    if not found.valid:
+        raise click.exceptions.Exit(2)
+    click.echo(found.summary)
 
 
 @cli.command()

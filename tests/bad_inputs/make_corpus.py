@@ -81,8 +81,8 @@ def main() -> None:
             cases[case] = {"file": file, "column": column, "row": row, "args": list(args)}
 
         add("missing_column", {"hits.parquet": hits.drop_columns(["sigma_u"])}, "hits.parquet", "sigma_u", None)
-        add("extra_column", {"hits.parquet": hits.append_column("charge", pa.array(np.ones(n, np.int8)))},
-            "hits.parquet", "charge", None)
+        # issue 16: extra columns are ignored with one warning line; a valid dataset, not a case of cases.json
+        _write("extra_column", base, {"hits.parquet": hits.append_column("charge", pa.array(np.ones(n, np.int8)))})
         add("wrong_dtype", {"hits.parquet": hits.set_column(4, "u", pa.array([str(x) for x in hits.column("u").to_pylist()]))},
             "hits.parquet", "u", None)
         add("nan_value", {"hits.parquet": _set(hits, "u", 17, float("nan"))}, "hits.parquet", "u", 17)
@@ -123,6 +123,7 @@ def main() -> None:
         add("params_other_geometry", {"hits.parquet": hits}, "params.json", None, None,
             args=["--params", "{case}/params.json"], params=params)
         add_issue_13_cases(add, hits, mc_hits, particles, params)
+        add_issue_16_cases(add, hits, mc_hits, particles)
         (HERE / "cases.json").write_text(json.dumps(cases, indent=1, sort_keys=True) + "\n")
 
 
@@ -190,6 +191,18 @@ def add_issue_13_cases(add, hits: pa.Table, mc_hits: pa.Table, particles: pa.Tab
         params=params_with(lambda p: p.__setitem__("slots", p["slots"][:10])))
     add("params_short_coefficients", {"hits.parquet": hits}, "params.json", None, None, args=args,
         params=params_with(lambda p: p["slots"][60].__setitem__("extrapolation", p["slots"][60]["extrapolation"][:5])))
+
+
+def add_issue_16_cases(add, hits: pa.Table, mc_hits: pa.Table, particles: pa.Table) -> None:
+    """Issue 16: missing truth is accepted on noise rows of mc_hits (particle_id 0) only."""
+    particle_rows = np.flatnonzero(mc_hits.column("particle_id").to_numpy() != 0)
+    tables = {"hits.parquet": hits, "particles.parquet": particles}
+    row = int(particle_rows[11])
+    add("null_truth_on_particle_row", tables | {"mc_hits.parquet": _set(mc_hits, "tx", row, None)},
+        "mc_hits.parquet", "tx", row)
+    row = int(particle_rows[13])
+    add("nan_truth_on_particle_row", tables | {"mc_hits.parquet": _set(mc_hits, "qop", row, float("nan"))},
+        "mc_hits.parquet", "qop", row)
 
 
 if __name__ == "__main__":

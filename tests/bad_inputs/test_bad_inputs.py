@@ -21,7 +21,7 @@ def _copy(case: str, tmp_path: Path) -> Path:
 
 
 def test_corpus_covers_design_13():
-    needed = {"missing_column", "extra_column", "wrong_dtype", "nan_value", "inf_value", "unknown_layer",
+    needed = {"missing_column", "wrong_dtype", "nan_value", "inf_value", "unknown_layer",
               "duplicate_hit", "unsorted_events", "empty_dataset", "truncated_file", "not_parquet",
               "params_other_geometry",
               # issue 13
@@ -29,9 +29,25 @@ def test_corpus_covers_design_13():
               "hit_in_beam_hole", "mc_hits_without_particles", "particles_without_mc_hits",
               "hits_without_truth", "zero_momentum", "particle_id_too_large", "geometry_toml_missing",
               "geometry_string_number", "params_nan_coefficient", "params_missing_slots",
-              "params_short_coefficients"}
+              "params_short_coefficients",
+              # issue 16: missing truth only on noise rows
+              "null_truth_on_particle_row", "nan_truth_on_particle_row"}
     assert needed <= set(CASES)
     assert all((HERE / case).is_dir() for case in CASES)
+    assert "extra_column" not in CASES  # issue 16: ignored with a warning (test_extra_column_is_ignored_...)
+
+
+def test_extra_column_is_ignored_with_one_warning(tmp_path, capsys):
+    """Issue 16: an extra column (here `charge` in hits) is no longer an error: the run
+    succeeds and says once, on stderr, which columns it ignored."""
+    dataset = _copy("extra_column", tmp_path)
+    code = main(["reconstruct", str(dataset), "--out", str(tmp_path / "run"), "--workers", "1",
+                 "--events-per-batch", "1"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    warnings = [line for line in err.splitlines() if "warning" in line]
+    assert warnings == [f"pkf: warning: {dataset / 'hits.parquet'}: column 'charge' not part of the hits schema: ignored"]
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["input"]["ignored_columns"] == {"hits": ["charge"]}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))

@@ -143,9 +143,44 @@ def test_missing_column(tmp_path, tables):
     raises_input_error(read, "hits.parquet", "column 'u'", "missing")
 
 
-def test_extra_column(tmp_path, tables):
-    read = _write_hits(tmp_path, tables["hits"].append_column("w", pa.array(np.zeros(tables["hits"].num_rows))))
-    raises_input_error(read, "hits.parquet", "column 'w'", "not part of the hits schema")
+def test_extra_columns_are_ignored_and_listed(dataset_dir, tables):
+    """Issue 16: producers add columns (times, cluster sizes); the reader ignores them and
+    lists them per table (the stages print one warning line each)."""
+    n = tables["hits"].num_rows
+    pq.write_table(tables["hits"].append_column("w", pa.array(np.zeros(n))).append_column("t", pa.array(np.ones(n))),
+                   dataset_dir / "hits.parquet")
+    ds = open_dataset(dataset_dir)
+    assert ds.hits.equals(tables["hits"])
+    assert ds.ignored_columns == {"hits": ("w", "t")}
+    assert read_table(dataset_dir, HITS, name="hits").equals(tables["hits"])
+
+
+def _mc_with(tables, column: str, row: int, value) -> pa.Table:
+    mc = tables["mc_hits"]
+    values = mc.column(column).to_pylist()
+    values[row] = value
+    return replace_column(mc, column, values, pa.float64())
+
+
+def test_nan_truth_on_noise_rows_is_read_as_null(dataset_dir, tables):
+    """Issue 16: NaN, the natural "no truth" of other producers, is null on noise rows."""
+    mc = tables["mc_hits"]
+    noise = np.flatnonzero(mc.column("particle_id").to_numpy() == 0)
+    nan_mc = mc
+    for name in ("tx", "ty", "qop"):
+        values = mc.column(name).to_numpy(zero_copy_only=False)  # NaN where null
+        nan_mc = replace_column(nan_mc, name, pa.array(values, pa.float64()), pa.float64())
+    assert nan_mc.column("qop").null_count == 0
+    assert np.isnan(nan_mc.column("qop").to_numpy()[noise]).all()
+    pq.write_table(nan_mc, dataset_dir / "mc_hits.parquet")
+    assert open_dataset(dataset_dir).mc_hits.equals(mc)
+
+
+@pytest.mark.parametrize("value, problem", [(None, "is null on a particle's hit (particle_id=1)"),
+                                            (float("nan"), "is NaN")])
+def test_missing_truth_on_a_particle_row_is_bad(dataset_dir, tables, value, problem):
+    pq.write_table(_mc_with(tables, "ty", 1, value), dataset_dir / "mc_hits.parquet")
+    raises_input_error(lambda: open_dataset(dataset_dir), "mc_hits.parquet", "column 'ty': row 1 (", problem)
 
 
 def test_wrong_dtype(tmp_path, tables):

@@ -3,7 +3,7 @@
 A table ``NAME`` of a dataset (or run) directory ``DIR`` is either one Parquet file
 ``DIR/NAME.parquet`` or a directory ``DIR/NAME/`` of Parquet files with the same
 schema (DESIGN §6). The reader checks, before any work is done (DESIGN §13):
-missing/extra columns, dtypes, nulls in non-nullable columns, NaN/inf in measured
+missing columns (extra ones are ignored, and listed), dtypes, nulls in non-nullable columns, NaN/inf in measured
 values, errors below 1 nm, particles without momentum or with ids the MC matching
 cannot key, sorting by ``event_id``, duplicate ids, empty hit tables, and truncated or
 non-Parquet files. :func:`validate_hit_layers` checks hits against a geometry (layers,
@@ -43,10 +43,13 @@ __all__ = [
     "read_table",
     "read_meta",
     "open_dataset",
+    "check_dataset_dir",
     "validate_hit_layers",
     "validate_consistency",
     "validate_hit_area",
     "find_truth_tables",
+    "extra_columns",
+    "extra_columns_warning",
     "pair_keys",
     "LayerArea",
 ]
@@ -247,8 +250,22 @@ def _check_magic(file: Path, shown: str) -> None:
         raise InputError(f"{shown}: truncated Parquet file (no footer; was it written completely?)")
 
 
+def extra_columns(file_schema: pa.Schema, schema: pa.Schema) -> list[str]:
+    """Columns of a file that are not part of ``schema``: ignored by the readers (producers
+    add columns such as times or cluster sizes), reported once per table as a warning."""
+    return [n for n in file_schema.names if n not in schema.names]
+
+
+def extra_columns_warning(location: object, table_name: str, names: Sequence[str]) -> str:
+    """The one warning line about a table's ignored extra columns."""
+    listed = ", ".join(repr(n) for n in names)
+    plural = "s" if len(names) > 1 else ""
+    return f"{location}: column{plural} {listed} not part of the {table_name} schema: ignored"
+
+
 def open_checked(file: Path, schema: pa.Schema, table_name: str, **options) -> pq.ParquetFile:
-    """Open one Parquet file after checking magic bytes, column names and dtypes (not values).
+    """Open one Parquet file after checking magic bytes, required column names and dtypes (not
+    values); columns beyond ``schema`` are allowed (see :func:`extra_columns`).
 
     ``options`` go to ``pyarrow.parquet.ParquetFile``. The caller closes the returned file.
     Raises InputError (one line naming the file).
@@ -269,10 +286,6 @@ def open_checked(file: Path, schema: pa.Schema, table_name: str, **options) -> p
         if missing:
             more = f" (also missing: {', '.join(missing[1:])})" if len(missing) > 1 else ""
             raise InputError(f"{shown}: column {missing[0]!r} is missing{more}")
-        extra = [n for n in names if n not in schema.names]
-        if extra:
-            more = f" (also: {', '.join(extra[1:])})" if len(extra) > 1 else ""
-            raise InputError(f"{shown}: column {extra[0]!r} is not part of the {table_name} schema{more}")
         for fld in schema:
             src = file_schema.field(fld.name).type
             if not _castable(src, fld.type):
@@ -283,8 +296,11 @@ def open_checked(file: Path, schema: pa.Schema, table_name: str, **options) -> p
     return pf
 
 
-def convert_to_schema(raw: pa.Table, schema: pa.Schema, source: Source, key: Sequence[str]) -> pa.Table:
-    """Convert a table read from a file to ``schema`` (integer widths checked value by value).
+def convert_to_schema(raw: pa.Table, schema: pa.Schema, source: Source, key: Sequence[str],
+                      spec: TableSpec | None = None) -> pa.Table:
+    """Convert a table read from a file to ``schema`` (integer widths checked value by value);
+    NaN truth on noise rows becomes null (:func:`noise_truth_as_null`, with the rules ``spec``
+    of the table, default: those of ``schema``).
 
     Raises InputError naming the file, column and first row whose value does not fit.
     """
@@ -307,26 +323,50 @@ def convert_to_schema(raw: pa.Table, schema: pa.Schema, source: Source, key: Seq
             else:
                 col = col.cast(fld.type)
         columns.append(col)
-    return pa.Table.from_arrays(columns, schema=schema)
+    return noise_truth_as_null(pa.Table.from_arrays(columns, schema=schema), spec or spec_for(schema))
 
 
-def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str]) -> pa.Table:
-    """Read one Parquet file and convert it to ``schema`` (columns, dtypes, integer ranges)."""
+def noise_truth_as_null(table: pa.Table, spec: TableSpec | None) -> pa.Table:
+    """The table with NaN replaced by null in the truth columns of noise rows (``spec.noise_truth``:
+    rows whose particle column is 0); unchanged without such a rule or without those columns."""
+    if spec is None or spec.noise_truth is None:
+        return table
+    columns, particle = spec.noise_truth
+    if particle not in table.column_names or table.num_rows == 0:
+        return table
+    noise = pc.equal(table.column(particle), 0)
+    for name in columns:
+        if name not in table.column_names:
+            continue
+        col = table.column(name)
+        nan = pc.fill_null(pc.and_(noise, pc.is_nan(col)), False)
+        if pc.any(nan).as_py():
+            i = table.column_names.index(name)
+            table = table.set_column(i, table.field(i), pc.if_else(nan, pa.scalar(None, col.type), col))
+    return table
+
+
+def _read_file(file: Path, schema: pa.Schema, table_name: str, key: Sequence[str]) -> tuple[pa.Table, list[str]]:
+    """Read one Parquet file and convert it to ``schema`` (columns, dtypes, integer ranges);
+    also return the file's extra columns (not read)."""
     shown = str(file)
     pf = open_checked(file, schema, table_name)
     try:
+        extra = extra_columns(pf.schema_arrow, schema)
         raw = pf.read(columns=schema.names, use_threads=True)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{shown}: corrupt or truncated Parquet file ({_one_line(exc)})") from None
     finally:
         pf.close()
-    return convert_to_schema(raw, schema, shown, key)
+    return convert_to_schema(raw, schema, shown, key), extra
 
 
 def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str,
-                      check: Callable[[pa.Table, Source], None] | None = None) -> tuple[pa.Table, TableSource]:
+                      check: Callable[[pa.Table, Source], None] | None = None
+                      ) -> tuple[pa.Table, TableSource, tuple[str, ...]]:
     """Read, convert and validate a table; ``check(table, source)`` is an extra check whose
-    problems compete with the value rules for the first bad row."""
+    problems compete with the value rules for the first bad row. Also returns the extra
+    columns of its files (ignored), in order of first appearance."""
     spec = spec_for(schema)
     key = spec.unique_key if spec is not None else tuple(n for n in ("event_id", "hit_id") if n in schema.names)
     location = find_table(path, name)
@@ -338,7 +378,9 @@ def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str,
             raise InputError(f"{location}: directory contains no Parquet files ({name} must not be empty)")
     else:
         files = [location]
-    tables = [_read_file(f, schema, name, key) for f in files]
+    read = [_read_file(f, schema, name, key) for f in files]
+    tables = [table for table, _ in read]
+    ignored = tuple(dict.fromkeys(n for _, extra in read for n in extra))
     offsets = tuple(int(x) for x in np.cumsum([0] + [t.num_rows for t in tables]))
     source = TableSource(location, tuple(files), offsets)
     if not tables:
@@ -349,7 +391,7 @@ def _read_with_source(path: str | os.PathLike, schema: pa.Schema, name: str,
         table = pa.concat_tables(tables)
     extra = [lambda: check(table, source)] if check is not None else []
     _validate_values(table, schema, spec, source, extra)
-    return table, source
+    return table, source, ignored
 
 
 # --------------------------------------------------------------------------- value checks
@@ -462,6 +504,13 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                 check(zero_length, group[0], lambda row, group=group, why=why:
                       f"is part of ({', '.join(group)}) = ({', '.join(value(c, row) for c in group)}), "
                       f"of length 0: must be > 0 ({why})")
+        if spec.noise_truth is not None:  # before null_together: the clearer message for a particle's row
+            truth_columns, particle = spec.noise_truth
+            of_particle = pc.not_equal(table.column(particle), 0)
+            for name in truth_columns:
+                check(lambda c=name: pc.and_(of_particle, pc.is_null(table.column(c))), name,
+                      lambda row, p=particle: f"is null on a particle's hit ({p}={value(p, row)}): only noise "
+                                              f"hits ({p} 0) may lack truth")
         for group in spec.null_together:
             def nulls_of(group=group):
                 return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
@@ -519,7 +568,7 @@ def read_table(path: str | os.PathLike, schema: pa.Schema, *, name: str) -> pa.T
     Columns may come in any order; integer columns of another integer width are
     converted when every value fits, float columns are converted from other floats
     or integers, string columns from large/dictionary strings; any other dtype is
-    an error, as are missing or extra columns. For the pkf schemas
+    an error, as are missing columns (extra columns are ignored). For the pkf schemas
     (:mod:`pkf.io.schemas`) the rules of :data:`~pkf.io.schemas.TABLE_SPECS` are
     applied (finite measured values, errors > 0, sorted by event_id, unique ids,
     non-empty hits); for another schema, only dtypes, nulls and event_id order.
@@ -530,7 +579,7 @@ def read_table(path: str | os.PathLike, schema: pa.Schema, *, name: str) -> pa.T
     Raises:
         InputError: one line naming the file, column and first bad row.
     """
-    table, _ = _read_with_source(path, schema, name)
+    table, _, _ = _read_with_source(path, schema, name)
     return table
 
 
@@ -809,14 +858,21 @@ def validate_consistency(
                 )
 
 
-def read_meta(dataset_dir: str | os.PathLike) -> dict:
+def read_meta(dataset_dir: str | os.PathLike, required: bool = True) -> dict | None:
     """Read ``meta.json`` of a dataset (geometry name and hash, generator, seed, pkf version).
 
+    Args:
+        required: if False, a missing file gives None (a dataset of another producer,
+            whose geometry is given on the command line).
+
     Raises:
-        InputError: the file is missing, unreadable, not valid JSON or not a JSON object.
+        InputError: the file is missing (and required), unreadable, not valid JSON or not
+            a JSON object.
     """
     path = Path(dataset_dir) / "meta.json"
     if not path.is_file():
+        if not required and not path.exists():
+            return None
         raise InputError(f"{path}: file not found (every dataset has a meta.json)")
     try:
         text = path.read_text(encoding="utf-8")
@@ -867,6 +923,7 @@ class Dataset:
         particles: the ``particles`` table, or None if the dataset has none.
         mc_hits: the ``mc_hits`` table, or None if the dataset has none.
         sources: per table name, where its rows came from (for error messages).
+        ignored_columns: per table name, its extra columns (not read), if any.
     """
 
     path: Path
@@ -875,11 +932,23 @@ class Dataset:
     particles: pa.Table | None
     mc_hits: pa.Table | None
     sources: dict[str, TableSource] = field(default_factory=dict, repr=False, compare=False)
+    ignored_columns: dict[str, tuple[str, ...]] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def has_mc(self) -> bool:
         """Whether the dataset carries MC truth (both ``particles`` and ``mc_hits``)."""
         return self.particles is not None and self.mc_hits is not None
+
+
+def check_dataset_dir(dataset_dir: str | os.PathLike) -> Path:
+    """The dataset directory as a Path; InputError if it does not exist or is not a directory."""
+    shown = os.fspath(dataset_dir)
+    path = Path(dataset_dir)
+    if not path.exists():
+        raise InputError(f"{shown}: dataset directory does not exist")
+    if not path.is_dir():
+        raise InputError(f"{shown}: not a directory (a dataset is a directory with meta.json and hits)")
+    return path
 
 
 def open_dataset(
@@ -888,12 +957,15 @@ def open_dataset(
     layer_z: Sequence[float] | np.ndarray | None = None,
     layer_kind: Sequence[int] | np.ndarray | None = None,
     area: LayerArea | None = None,
+    meta: dict | None = None,
 ) -> Dataset:
     """Open and validate a dataset directory: ``meta.json``, ``hits`` and, if present,
     ``particles`` and ``mc_hits``, plus their consistency (:func:`validate_consistency`).
 
     Args:
         dataset_dir: the dataset directory.
+        meta: the dataset's record if already read (``{}`` for a dataset without
+            ``meta.json``); default: read ``meta.json`` (required).
         layer_z, layer_kind: if both are given, the hits are also checked against
             these geometry layers (:func:`validate_hit_layers`).
         area: with them, the layers' active areas (errors and positions of the hits).
@@ -901,13 +973,9 @@ def open_dataset(
     Raises:
         InputError: one line naming the file, column and first bad row.
     """
-    shown = os.fspath(dataset_dir)
-    path = Path(dataset_dir)
-    if not path.exists():
-        raise InputError(f"{shown}: dataset directory does not exist")
-    if not path.is_dir():
-        raise InputError(f"{shown}: not a directory (a dataset is a directory with meta.json and hits)")
-    meta = read_meta(path)
+    path = check_dataset_dir(dataset_dir)
+    if meta is None:
+        meta = read_meta(path)
     truth = find_truth_tables(path)
     if (layer_z is None) != (layer_kind is None):
         raise ValueError("give both layer_z and layer_kind, or neither")
@@ -915,13 +983,15 @@ def open_dataset(
     if layer_z is not None:
         def check_layers(table, source):
             validate_hit_layers(table, layer_z, layer_kind, source=source, area=area)
-    hits, hits_src = _read_with_source(path, HITS, "hits", check_layers)
+    hits, hits_src, hits_extra = _read_with_source(path, HITS, "hits", check_layers)
     sources = {"hits": hits_src}
+    ignored = {"hits": hits_extra}
     tables: dict[str, pa.Table | None] = {}
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
         if truth[name] is None:
             tables[name] = None
             continue
-        tables[name], sources[name] = _read_with_source(path, schema, name)
+        tables[name], sources[name], ignored[name] = _read_with_source(path, schema, name)
     validate_consistency(hits, tables["particles"], tables["mc_hits"], sources=sources)
-    return Dataset(path, meta, hits, tables["particles"], tables["mc_hits"], sources)
+    return Dataset(path, meta, hits, tables["particles"], tables["mc_hits"], sources,
+                   {name: extra for name, extra in ignored.items() if extra})

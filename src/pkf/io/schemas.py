@@ -123,7 +123,7 @@ PARTICLES = _schema(
 
 #: ``mc_hits``: MC truth per hit. particle_id 0 for noise hits; x, y, z in mm and the
 #: true local state tx, ty, qop (1/MeV) at the layer after material effects; tx, ty,
-#: qop are null for noise hits.
+#: qop are null for noise hits (a NaN there is read as null) and set on every other row.
 MC_HITS = _schema(
     "mc_hits",
     [
@@ -233,6 +233,9 @@ class TableSpec:
             (None: unbounded on that side); ``why`` is said in the message.
         nonzero_vectors: (columns, why): the components of a vector whose length must be
             > 0 (e.g. a particle's momentum); ``why`` is said in the message.
+        noise_truth: (columns, particle column): truth columns that only rows of a particle
+            (particle column != 0) must have; on noise rows (0) a NaN is read as null, the
+            natural "no truth" of other producers.
     """
 
     name: str
@@ -245,6 +248,7 @@ class TableSpec:
     allow_empty: bool = True
     ranges: tuple[tuple[str, float | None, float | None, str], ...] = ()
     nonzero_vectors: tuple[tuple[tuple[str, ...], str], ...] = ()
+    noise_truth: tuple[tuple[str, ...], str] | None = None
 
 
 #: Validation rules per table name.
@@ -283,6 +287,7 @@ TABLE_SPECS: dict[str, TableSpec] = {
         null_together=(("tx", "ty", "qop"),),
         # a particle's hit has a finite momentum: p_true = 1/|qop| in the pulls
         nonzero_vectors=((("qop",), "the true q/p of a particle's hit; p = 1/|qop|"),),
+        noise_truth=(("tx", "ty", "qop"), "particle_id"),
     ),
     "chi2": TableSpec("chi2", CHI2, unique_key=("event_id", "track_id", "fitter")),
     "candidates": TableSpec("candidates", CANDIDATES, unique_key=("event_id", "track_id", "hit_id")),

@@ -27,6 +27,7 @@ from pkf.io.reader import (
     _one_line,
     _validate_values,
     convert_to_schema,
+    extra_columns,
     find_table,
     open_checked,
 )
@@ -75,6 +76,7 @@ class TableScan:
         events: the distinct event ids, in order.
         starts: table row of the first row of each event, plus the total (len(events) + 1).
         sha256: hex SHA-256 of each file.
+        ignored_columns: the files' columns beyond the schema (not read), in order of first appearance.
     """
 
     name: str
@@ -84,6 +86,7 @@ class TableScan:
     events: np.ndarray
     starts: np.ndarray
     sha256: tuple[str, ...]
+    ignored_columns: tuple[str, ...] = ()
 
     @property
     def n_rows(self) -> int:
@@ -128,7 +131,7 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
     files = _list_parquet_files(location) if location.is_dir() else [location]
     if not files and (spec is None or not spec.allow_empty):
         raise InputError(f"{location}: directory contains no Parquet files ({name} must not be empty)")
-    file_rows, events, starts, hashes = [0], [], [], []
+    file_rows, events, starts, hashes, ignored = [0], [], [], [], {}
     carry: list[tuple[Path, int, pa.Table]] = []  # (file, file row, rows) of the last event so far
     total = 0
     for file in files:
@@ -136,6 +139,7 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
         pf = open_checked(file, schema, name, pre_buffer=False, buffer_size=1 << 20)
         base = 0
         try:
+            ignored.update(dict.fromkeys(extra_columns(pf.schema_arrow, schema)))
             batches = pf.iter_batches(batch_size=BATCH_ROWS, columns=schema.names, use_threads=True)
             while True:
                 try:
@@ -173,7 +177,7 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
     if total == 0 and spec is not None and not spec.allow_empty:
         raise InputError(f"{location}: table is empty (no rows)")
     return TableScan(name, schema, tuple(files), tuple(file_rows), np.asarray(events, dtype=np.int64),
-                     np.asarray(starts + [total], dtype=np.int64), tuple(hashes))
+                     np.asarray(starts + [total], dtype=np.int64), tuple(hashes), tuple(ignored))
 
 
 def find_and_scan(dataset: Path, name: str, schema: pa.Schema, required: bool,
@@ -210,7 +214,7 @@ def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None =
             last = int(np.searchsorted(edges, b, side="left"))
             raw = pf.read_row_groups(list(range(first, last)), columns=names, use_threads=True)
         raw = raw.slice(a - int(edges[first]), b - a)
-        parts.append(convert_to_schema(raw, schema, str(file), ()))
+        parts.append(convert_to_schema(raw, schema, str(file), (), spec_for(scan.schema)))
     if not parts:
         return schema.empty_table()
     return pa.concat_tables(parts).combine_chunks() if len(parts) > 1 else parts[0]

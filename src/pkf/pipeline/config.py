@@ -26,6 +26,7 @@ class ReconstructionConfig:
     max_outliers: int = 2
     iterations: int | None = None  # None: each fitter's own (Fitter.iterations)
     max_components: int = 12
+    geometry: str | None = None  # --geometry NAME|FILE.toml; None: the one meta.json records
 
     def validate(self) -> list[Fitter]:
         if self.pattern not in PATTERNS:

@@ -63,14 +63,16 @@ def _use_numba_cache(cache_dir: str | None) -> None:
 _GEOMETRIES: dict = {}
 
 
-def _geometry(dataset: str):
-    if dataset not in _GEOMETRIES:
+def _geometry(dataset: str, option: str | None = None):
+    """The dataset's geometry (``option``: ``--geometry``), cached per process."""
+    if (dataset, option) not in _GEOMETRIES:
         from pkf.io.reader import read_meta
-        from pkf.pipeline.inputs import dataset_geometry
+        from pkf.pipeline.inputs import resolve_geometry
 
         _GEOMETRIES.clear()
-        _GEOMETRIES[dataset] = dataset_geometry(Path(dataset), read_meta(Path(dataset)))
-    return _GEOMETRIES[dataset]
+        _GEOMETRIES[dataset, option] = resolve_geometry(Path(dataset), read_meta(Path(dataset), required=False),
+                                                        option)
+    return _GEOMETRIES[dataset, option]
 
 
 def reconstruct_task(task: PartitionTask, max_events: int | None = None):
@@ -84,7 +86,7 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None):
     from pkf.pipeline.config import ReconstructionConfig
 
     config = ReconstructionConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in task.config.items()})
-    ctx = context_for(_geometry(task.dataset), config)
+    ctx = context_for(_geometry(task.dataset, config.geometry), config)
     parts = {}
     for name, (scan, lo, hi) in task.tables.items():
         parts[name] = read_rows(scan, lo, hi)

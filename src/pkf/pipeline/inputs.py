@@ -18,18 +18,76 @@ from pkf.geometry.detector import (
     load_geometry,
     parse_geometry,
 )
-from pkf.io.reader import Dataset, LayerArea, open_dataset, pair_keys, read_meta
+from pkf.io.reader import Dataset, LayerArea, check_dataset_dir, open_dataset, pair_keys, read_meta
 from pkf.io.schemas import particle_key
 
 STATE_NAMES = ("x", "y", "tx", "ty", "qop")
 
 
-def load_dataset(path: str | Path) -> tuple[Geometry, Dataset]:
-    """The geometry of the dataset at `path` and its validated tables (InputError if bad)."""
-    path = Path(path)
-    meta = read_meta(path)
-    geometry = dataset_geometry(path, meta)
-    return geometry, open_dataset(path, **hit_layer_checks(geometry))
+def load_dataset(path: str | Path, geometry: str | None = None) -> tuple[Geometry, Dataset]:
+    """The geometry of the dataset at `path` and its validated tables (InputError if bad).
+
+    geometry: ``--geometry`` NAME|FILE.toml, if given (see :func:`resolve_geometry`).
+    """
+    path = check_dataset_dir(path)
+    meta = read_meta(path, required=False)
+    found = resolve_geometry(path, meta, geometry)
+    return found, open_dataset(path, **hit_layer_checks(found), meta=meta or {})
+
+
+def option_geometry(option: str) -> Geometry:
+    """The geometry of ``--geometry NAME|FILE.toml`` (InputError naming the option if bad)."""
+    try:
+        return load_geometry(option)
+    except InputError as exc:
+        raise InputError(f"--geometry: {exc}") from None
+
+
+def resolve_geometry(path: Path, meta: dict | None, option: str | None) -> Geometry:
+    """The geometry of the dataset at ``path`` with record ``meta`` (None: no meta.json).
+
+    ``option`` (``--geometry NAME|FILE.toml``) is used when given; meta.json's ``geometry``
+    (a name or pkf's record) then must agree with it (same content hash; when meta.json
+    gives only a name that is not built in and has no copy, the same name). Without the
+    option, the geometry meta.json records (:func:`dataset_geometry`).
+
+    Raises:
+        InputError: no meta.json and no option; meta.json and the option disagree.
+    """
+    if option is None:
+        if meta is None:
+            raise InputError(f"{path}: no meta.json to say which detector the hits come from: give "
+                             f"--geometry NAME|FILE.toml (built in: {', '.join(BUILTIN_GEOMETRIES)})")
+        return dataset_geometry(path, meta)
+    given = option_geometry(option)
+    if meta is not None and "geometry" in meta:
+        _check_agrees(path, meta, given, option)
+    return given
+
+
+def _check_agrees(path: Path, meta: dict, given: Geometry, option: str) -> None:
+    """InputError if meta.json's geometry is not the one of ``--geometry``."""
+    info = _geometry_info(path, meta)
+    if (path / str(info.get("file", "geometry.toml"))).is_file() or info.get("name") in BUILTIN_GEOMETRIES:
+        recorded = dataset_geometry(path, meta)
+        same, what = recorded.content_hash == given.content_hash, f"{recorded.name!r} (hash {recorded.content_hash})"
+    elif "hash" in info:
+        same, what = info["hash"] == given.content_hash, f"{info.get('name', '?')!r} (hash {info['hash']})"
+    else:
+        same, what = info.get("name") == given.name, f"{info.get('name')!r}"
+    if not same:
+        raise InputError(f"{path / 'meta.json'}: geometry {what} disagrees with --geometry {option} "
+                         f"({given.name!r}, hash {given.content_hash}): give the geometry the data was made with")
+
+
+def _geometry_info(path: Path, meta: dict) -> dict:
+    """meta.json's ``geometry`` as a dict (a plain name becomes ``{"name": ...}``)."""
+    info = meta.get("geometry", {})
+    if isinstance(info, str):  # a plain name (DESIGN §6: datasets from other producers)
+        info = {"name": info}
+    if not isinstance(info, dict):
+        raise InputError(f"{path / 'meta.json'}: key 'geometry' must be a name or an object, not {info!r}")
+    return info
 
 
 def hit_layer_checks(geometry: Geometry) -> dict:
@@ -71,11 +129,7 @@ def layer_area(geometry: Geometry) -> LayerArea:
 def dataset_geometry(path: Path, meta: dict) -> Geometry:
     """The geometry a dataset was simulated with: its ``geometry.toml`` copy, else the
     built-in named in meta.json; the content hash must match meta.json."""
-    info = meta.get("geometry", {})
-    if isinstance(info, str):  # a plain name (DESIGN §6: datasets from other producers)
-        info = {"name": info}
-    if not isinstance(info, dict):
-        raise InputError(f"{path / 'meta.json'}: key 'geometry' must be a name or an object, not {info!r}")
+    info = _geometry_info(path, meta)
     copy = path / str(info.get("file", "geometry.toml"))
     if copy.is_file():
         geometry = parse_geometry(copy.read_text(), source=str(copy))
@@ -87,7 +141,7 @@ def dataset_geometry(path: Path, meta: dict) -> Geometry:
             f"not built in ({', '.join(BUILTIN_GEOMETRIES)}); restore the file"
         )
     else:
-        raise InputError(f"{path / 'meta.json'}: no geometry recorded (key 'geometry')")
+        raise InputError(f"{path / 'meta.json'}: no geometry recorded (key 'geometry'): give --geometry NAME|FILE.toml")
     if "hash" in info and info["hash"] != geometry.content_hash:
         raise InputError(f"{path}: geometry hash {geometry.content_hash} does not match meta.json ({info['hash']})")
     return geometry

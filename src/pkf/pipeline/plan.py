@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,10 +19,17 @@ import numpy as np
 
 from pkf.errors import InputError
 from pkf.geometry.detector import Geometry
-from pkf.io.reader import find_truth_tables, read_meta, validate_consistency, validate_hit_layers
+from pkf.io.reader import (
+    check_dataset_dir,
+    extra_columns_warning,
+    find_truth_tables,
+    read_meta,
+    validate_consistency,
+    validate_hit_layers,
+)
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES
 from pkf.io.stream import TableScan, find_and_scan, read_rows, scan_table
-from pkf.pipeline.inputs import dataset_geometry, hit_layer_checks
+from pkf.pipeline.inputs import hit_layer_checks, resolve_geometry
 
 __all__ = ["DatasetPlan", "Partition", "plan_dataset"]
 
@@ -71,8 +79,23 @@ class DatasetPlan:
     def n_hits(self) -> int:
         return self.tables["hits"].n_rows
 
+    def warnings(self) -> list[str]:
+        """One line per table with extra columns (ignored), naming them."""
+        return table_warnings(self.tables)
 
-def _partitions(hits: TableScan, events_per_batch: int) -> list[Partition]:
+
+def table_warnings(tables: dict) -> list[str]:
+    """One line per scanned table (name -> TableScan) with extra columns (ignored), naming them."""
+    return [extra_columns_warning(table_path(scan), name, scan.ignored_columns)
+            for name, scan in tables.items() if scan.ignored_columns]
+
+
+def table_path(scan: TableScan) -> Path:
+    """The table as found on disk: its one file, or the directory of its files."""
+    return scan.files[0] if len(scan.files) == 1 else Path(os.path.commonpath(scan.files))
+
+
+def cut_partitions(hits: TableScan, events_per_batch: int) -> list[Partition]:
     """Cut the events of each hits file into batches of at most ``events_per_batch``."""
     starts = hits.starts[:-1]
     file_of_event = np.searchsorted(np.asarray(hits.file_rows), starts, side="right") - 1
@@ -87,7 +110,7 @@ def _partitions(hits: TableScan, events_per_batch: int) -> list[Partition]:
     return out
 
 
-def _check_consistency(tables: dict, partitions: list[Partition]) -> None:
+def check_consistency(tables: dict, partitions: list[Partition]) -> None:
     """MC truth against hits, one partition's event range at a time (ranges tile all event ids)."""
     hits, mc, particles = tables["hits"], tables.get("mc_hits"), tables.get("particles")
     if mc is None and particles is None:
@@ -108,23 +131,21 @@ def _check_consistency(tables: dict, partitions: list[Partition]) -> None:
         validate_consistency(parts["hits"], parts["particles"], parts["mc_hits"], sources=sources)
 
 
-def plan_dataset(path: str | Path, events_per_batch: int) -> DatasetPlan:
+def plan_dataset(path: str | Path, events_per_batch: int, geometry: str | None = None) -> DatasetPlan:
     """Validate the dataset at ``path`` in bounded memory (DESIGN §13) and cut it into partitions.
+
+    geometry: ``--geometry`` NAME|FILE.toml, if given (:func:`~pkf.pipeline.inputs.resolve_geometry`).
 
     Raises:
         InputError: one line naming the file, the column and the first bad row.
     """
-    path = Path(path)
     if events_per_batch < 1:
         raise InputError(f"--events-per-batch: must be >= 1, not {events_per_batch}")
-    if not path.exists():
-        raise InputError(f"{path}: dataset directory does not exist")
-    if not path.is_dir():
-        raise InputError(f"{path}: not a directory (a dataset is a directory with meta.json and hits)")
-    meta = read_meta(path)
-    geometry = dataset_geometry(path, meta)
+    path = check_dataset_dir(path)
+    meta = read_meta(path, required=False)
+    found = resolve_geometry(path, meta, geometry)
     truth = find_truth_tables(path)
-    layer_checks = hit_layer_checks(geometry)
+    layer_checks = hit_layer_checks(found)
 
     def check_layers(table, source):
         validate_hit_layers(table, **layer_checks, source=source)
@@ -134,9 +155,9 @@ def plan_dataset(path: str | Path, events_per_batch: int) -> DatasetPlan:
     for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
         if truth[name] is not None:
             tables[name] = scan_table(truth[name], schema, name, content_digest=digest)
-    partitions = _partitions(tables["hits"], events_per_batch)
-    _check_consistency(tables, partitions)
-    return DatasetPlan(path, meta, geometry, tables, tuple(partitions), digest.hexdigest()[:16])
+    partitions = cut_partitions(tables["hits"], events_per_batch)
+    check_consistency(tables, partitions)
+    return DatasetPlan(path, meta or {}, found, tables, tuple(partitions), digest.hexdigest()[:16])
 
 
 def _source_digest() -> str:

@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 import pkf
 from pkf.errors import InputError
+from pkf.geometry.detector import BUILTIN_GEOMETRIES
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
 from pkf.io.stream import file_sha256
 from pkf.pipeline import triplet_pattern
@@ -34,6 +35,11 @@ from pkf.pipeline.resume import RunStaging, complete_run
 #: Default events per partition: bounds each worker's memory (~8000 hits per event at ν = 7.6,
 #: about 0.6 GiB per worker at 50 events).
 EVENTS_PER_BATCH = 50
+def geometry_file(option: str | None) -> str | None:
+    """``--geometry`` when it names a file (an input of the run), else None."""
+    return None if option is None or option in BUILTIN_GEOMETRIES else option
+
+
 def _check_config_against(plan: DatasetPlan, config: ReconstructionConfig) -> None:
     """Problems of the configuration for this dataset, before any work (DESIGN §13)."""
     if config.pattern == "truth" and not plan.has_mc:
@@ -77,19 +83,24 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise InputError(f"--workers: must be >= 1, not {workers}")
-    inputs = (dataset_path, config.params)
+    inputs = (dataset_path, config.params, geometry_file(config.geometry))
     check_output_apart(out, inputs)  # before anything: --overwrite would delete an input inside --out
     final = Path(out)
     maybe_complete = not overwrite and final.is_dir() and (final / "run.json").is_file()
     if not maybe_complete:
         check_output_dir(out, overwrite)
-    plan = plan_dataset(dataset_path, events_per_batch)
+    plan = plan_dataset(dataset_path, events_per_batch, config.geometry)
     _check_config_against(plan, config)
+    if echo:
+        for line in plan.warnings():
+            echo(f"pkf: warning: {line}")
     run_config = asdict(config) | {"events_per_batch": events_per_batch,
                                    "fit_iterations": {f.name: config.iterations or f.iterations
                                                       for f in config.validate()}}
     if config.params is not None and Path(config.params).is_file():
         run_config["params_sha256"] = file_sha256(config.params)
+    if geometry_file(config.geometry) is not None:
+        run_config["geometry_sha256"] = file_sha256(config.geometry)
     plan = with_keys(plan, run_config)
     keys = {p.name: p.key for p in plan.partitions}
     if maybe_complete:
@@ -169,6 +180,10 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
         "config": run_config | {"dataset": str(dataset_path)},
         "input": {"path": str(dataset_path.resolve()), "content_hash": plan.content_hash,
                   "geometry": plan.geometry.name, "geometry_hash": plan.geometry.content_hash,
+                  "geometry_from": ("--geometry " + run_config["geometry"] if run_config.get("geometry")
+                                    else "meta.json"),
+                  "ignored_columns": {name: list(scan.ignored_columns) for name, scan in plan.tables.items()
+                                      if scan.ignored_columns},
                   "files": {name: [{"path": str(f), "sha256": h} for f, h in zip(scan.files, scan.sha256)]
                             for name, scan in plan.tables.items()}},
         "counts": counts,

@@ -80,9 +80,10 @@ def load_truth(run: RunInput) -> DatasetTruth:
         return DatasetTruth("run.json names no dataset (input.path)")
     if not path.is_dir():
         return DatasetTruth(f"dataset {path} not found (moved or deleted since the run)")
-    if not (path / "meta.json").is_file():
+    geometry_option = (run.info.get("config") or {}).get("geometry")  # the run's --geometry, if given
+    if geometry_option is None and not (path / "meta.json").is_file():
         return DatasetTruth(f"{path} is not a dataset (no meta.json)")
-    geometry, dataset = load_dataset(path)
+    geometry, dataset = load_dataset(path, geometry_option)
     if not dataset.has_mc:
         return DatasetTruth(f"dataset {path} has no MC truth (particles, mc_hits)")
     recorded = (run.info.get("input") or {}).get("content_hash")

@@ -19,7 +19,8 @@ import numpy as np
 
 import pkf
 from pkf.errors import InputError
-from pkf.geometry.detector import Geometry
+from pkf.geometry.detector import BUILTIN_GEOMETRIES, Geometry
+from pkf.io.reader import extra_columns_warning
 from pkf.io.atomic import check_output_apart
 from pkf.io.schemas import particle_key
 from pkf.params.parameter_set import ParameterSet, slot_structure
@@ -102,14 +103,18 @@ def failed_fits(reports: dict) -> list[str]:
     return failed
 
 
-def pion_pairs(dataset_path):
+def pion_pairs(dataset_path, geometry_option: str | None = None, echo=None):
     """(geometry, dataset, field map, the state pairs of the dataset's pions, number of
-    events): the data set D of the tuning (DESIGN §9.3).
+    events): the data set D of the tuning (DESIGN §9.3). ``geometry_option``: ``--geometry``
+    NAME|FILE.toml, if given; ``echo`` is given the warning lines (ignored extra columns).
 
     Raises:
         InputError: the dataset has no MC truth, mc_hits of unknown particles, or no pions.
     """
-    geometry, dataset = load_dataset(dataset_path)
+    geometry, dataset = load_dataset(dataset_path, geometry_option)
+    if echo:
+        for name, extra in dataset.ignored_columns.items():
+            echo(f"pkf: warning: {extra_columns_warning(dataset.sources[name], name, extra)}")
     if dataset.mc_hits is None or dataset.particles is None:
         raise InputError(f"{dataset_path}: tuning needs mc_hits and particles (a simulated dataset)")
     field_map = geometry.reconstruction_field()
@@ -134,8 +139,11 @@ def pion_pairs(dataset_path):
     return geometry, dataset, field_map, pairs, int(np.unique(event).size)
 
 
-def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print) -> ParameterSet:
+def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print,
+               geometry: str | None = None) -> ParameterSet:
     """Tune every step of the dataset's geometry and write the parameter file `out`.
+
+    geometry: ``--geometry`` NAME|FILE.toml, if given (else the one the dataset's meta.json records).
 
     Raises:
         InputError: a bad ``out`` (:func:`check_output_file`), a dataset that is not a
@@ -143,9 +151,10 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
             (:func:`check_enough_pairs`), or a fit that Minuit does not mark valid;
             nothing is written.
     """
-    out = check_output_file(out, overwrite, inputs=(dataset_path,))
+    geometry_file = None if geometry is None or geometry in BUILTIN_GEOMETRIES else geometry
+    out = check_output_file(out, overwrite, inputs=(dataset_path, geometry_file))
     started = time.perf_counter()
-    geometry, dataset, field_map, pairs, n_events = pion_pairs(dataset_path)
+    geometry, dataset, field_map, pairs, n_events = pion_pairs(dataset_path, geometry, echo)
     check_enough_pairs(dataset_path, geometry, pairs, n_events)
     echo(f"tune: {pairs.x1.shape[0]} state pairs of pions from {n_events} events")
     table = ut_to_scifi_table(geometry, field_map)
