@@ -75,7 +75,8 @@ def _trajectory(ext, batch, t, alpha, theta):
               "theta0": np.zeros(slots), "step_plane": np.zeros(n + 1, dtype=np.int64)}
     plane_lo = search_sorted(ext.plane_z, batch.z[lo], True)
     status = _propagate(ext, alpha, theta, batch.z[lo:hi], n, plane_lo, arrays["node_state"], arrays["jac"],
-                        arrays["g"], arrays["theta0"], arrays["step_plane"], np.zeros((5, 5)), np.zeros((5, 5)))
+                        arrays["g"], arrays["theta0"], arrays["step_plane"], np.zeros((5, 5)), np.zeros((5, 5)),
+                        np.zeros(2, dtype=np.int64))
     assert status == 0
     return lo, hi, n, arrays
 

@@ -25,23 +25,14 @@ import numba as nb
 from numba.extending import overload
 
 from pkf.params.transport import ParametrizedExtrapolator, parametrized_step
-
-# Track status codes (the `status` column of the chi2 table says them in words). The codes
-# an extrapolation returns have the values of `pkf.params.transport.TRANSPORT_*`.
-STATUS_OK = 0
-STATUS_TOO_FEW_HITS = 1
-STATUS_EXTRAPOLATION_FAILED = 2
-STATUS_NOT_POSITIVE_DEFINITE = 3
-STATUS_BELOW_P_MIN = 4
-STATUS_NO_SEED = 5
-
-STATUS_NAMES = (
-    "ok",
-    "too few hits",
-    "extrapolation failed",
-    "covariance not positive definite",
-    "momentum below the parametrization's p_min",
-    "no seed estimate",
+from pkf.fit.status import (  # noqa: F401  (the codes every extrapolator returns)
+    STATUS_BELOW_P_MIN,
+    STATUS_EXTRAPOLATION_FAILED,
+    STATUS_NAMES,
+    STATUS_NO_SEED,
+    STATUS_NOT_POSITIVE_DEFINITE,
+    STATUS_OK,
+    STATUS_TOO_FEW_HITS,
 )
 
 _STEP_FUNCTIONS: dict[type, object] = {}

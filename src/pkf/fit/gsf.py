@@ -130,31 +130,13 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from pkf.fit.extrapolator import (
-    STATUS_EXTRAPOLATION_FAILED,
-    STATUS_NO_SEED,
-    STATUS_NOT_POSITIVE_DEFINITE,
-    STATUS_OK,
-    STATUS_TOO_FEW_HITS,
-)
-from pkf.fit.kalman import count_ndf, find_outlier, scalar_update
-from pkf.physics.linalg import (
-    copy5,
-    copy55,
-    invert_spd,
-    sandwich,
-    search_sorted,
-    set_identity,
-    symmetrise,
-)
-from pkf.fit.reference import (
-    MAX_SLOPE,
-    ReferenceExtrapolator,
-    add_plane_material,
-    reference_extrapolator,
-)
-from pkf.fit.tracks import FitResult, fit_locations
-from pkf.geometry.acceptance import in_active_area
+from pkf.fit.driver import max_nodes, register_fitter
+from pkf.fit.kalman import scalar_update
+from pkf.physics.linalg import copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
+from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagate, register_actor
+from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
+from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
+from pkf.fit.tracks import FitResult, fit_locations, run_fitter
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
     bethe_heitler_components,
@@ -569,11 +551,7 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
             sandwich(seg, cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     for c in range(n):
-        ok = abs(mu[c, 2]) <= MAX_SLOPE and abs(mu[c, 3]) <= MAX_SLOPE
-        for i in range(5):
-            if not math.isfinite(mu[c, i]):
-                ok = False
-        if ok:
+        if in_envelope(mu[c]):
             alive += 1
         else:
             w[c] = 0.0
@@ -593,13 +571,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
         for i in range(5):
             for j in range(5):
                 noise[i, j] = 0.0
-        x = mu[c, 0]
-        y = mu[c, 1]
-        tx = mu[c, 2]
-        ty = mu[c, 3]
-        inside = in_active_area(x, y, ref.plane_half_x[k], ref.plane_half_y[k], ref.plane_hole_radius[k],
-                                ref.plane_hole_half_x[k], ref.plane_hole_half_y[k], ref.plane_side[k],
-                                ref.plane_side_overlap[k])
+        t = plane_path_x0(ref, k, mu[c])
         add_plane_material(ref, k, mu[c], direction, jm, noise)
         if not math.isfinite(mu[c, 4]):
             continue  # this hypothesis stops in the plane (E − ΔE ≤ m): it is dropped
@@ -612,8 +584,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
             for j in range(5):
                 pc[i, j] += noise[i, j]
         nb_comp = 0
-        if ctx.bethe_heitler and inside and mu[c, 4] != 0.0 and math.isfinite(mu[c, 4]):
-            t = ref.plane_x_over_x0[k] * math.sqrt(1.0 + tx * tx + ty * ty)
+        if ctx.bethe_heitler and t > 0.0 and mu[c, 4] != 0.0 and math.isfinite(mu[c, 4]):
             nb_comp = bethe_heitler_components(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, t, bw, bm, bv)
         if nb_comp == 0:
             _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
@@ -642,45 +613,62 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
     return out
 
 
+class MixtureMaterial(NamedTuple):
+    """Propagator actor of the GSF: the mixture buf[0:3] = (w, mu, cov) with count[0]
+    components, transported component by component (`_transport`); at each plane the
+    material and Bethe–Heitler convolution into buf[3:6] (`_material`), the weight cut
+    and the reduction to at most ctx.max_components, back into buf[0:3]. The other
+    fields are `_reduce`'s bookkeeping and scratch."""
+
+    ctx: tuple
+    buf: tuple
+    count: np.ndarray
+    nearest: np.ndarray
+    nearest_d: np.ndarray
+    alive: np.ndarray
+    scratch: np.ndarray
+    bh: np.ndarray
+
+
 @nb.njit(cache=True, error_model="numpy")
-def _propagate(ctx, direction, z_from, z_to, buf, n, nearest, nearest_d, alive, scratch, bh):
-    """Transport the mixture buf[0] (n components) from z_from to z_to through the material
-    planes in (min z, max z] with the Bethe–Heitler convolution and a reduction after
-    each plane. buf = (w, mu, cov) × 2 working sets. Returns the new component count."""
-    w, mu, cov, w2, mu2, cov2 = buf
-    seg = scratch[0]
-    tmp = scratch[1]
-    tmp2 = scratch[2]
-    jm = scratch[3]
-    noise = scratch[4]
-    bw = bh[0]
-    bm = bh[1]
-    bv = bh[2]
-    ref = ctx.ref
-    plane_z = ref.plane_z
-    z = z_from
-    if direction > 0.0:
-        k = search_sorted(plane_z, z_from, True)
-        k_step = 1
-    else:
-        k = search_sorted(plane_z, z_from, True) - 1
-        k_step = -1
-    while 0 <= k < plane_z.size and ((direction > 0.0 and plane_z[k] <= z_to) or
-                                     (direction < 0.0 and plane_z[k] > z_to)):
-        _transport(ctx, w, mu, cov, n, z, plane_z[k], seg, tmp, tmp2)
-        n = _normalise_and_cut(w, mu, cov, n, 0.0)
-        if n == 0:
-            return 0
-        z = plane_z[k]
-        n2 = _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv)
-        n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
-        n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, nearest, nearest_d, alive)
-        for c in range(n2):
-            _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
-        n = n2
-        k += k_step
-    _transport(ctx, w, mu, cov, n, z, z_to, seg, tmp, tmp2)
-    return _normalise_and_cut(w, mu, cov, n, 0.0)
+def _mixture_transport(actor, ext, z_from, z_to, crossed):
+    """RK4 of every component; the components that left the envelope are dropped."""
+    w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
+    n = actor.count[0]
+    _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2])
+    n = _normalise_and_cut(w, mu, cov, n, 0.0)
+    actor.count[0] = n
+    return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _mixture_interact(actor, ext, k, direction):
+    """Material and Bethe–Heitler convolution of plane k, weight cut, reduction."""
+    w, mu, cov, w2, mu2, cov2 = actor.buf
+    ctx = actor.ctx
+    n2 = _material(ctx, k, direction, w, mu, cov, actor.count[0], w2, mu2, cov2, actor.scratch[3],
+                   actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2])
+    n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
+    n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.nearest_d, actor.alive)
+    for c in range(n2):
+        _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
+    actor.count[0] = n2
+    return STATUS_OK
+
+
+register_actor(MixtureMaterial, _mixture_transport, _mixture_interact)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _propagate(ctx, z_from, z_to, buf, n, count, nearest, nearest_d, alive, scratch, bh):
+    """Transport the mixture buf[0:3] (n components) from z_from to z_to through the
+    material planes in (min z, max z] (`MixtureMaterial`); buf = (w, mu, cov) × 2 working
+    sets, count a 1-element scratch. Returns the new component count (0: failed)."""
+    count[0] = n
+    actor = MixtureMaterial(ctx, buf, count, nearest, nearest_d, alive, scratch, bh)
+    if propagate(ctx.ref, actor, z_from, z_to) != STATUS_OK:
+        return 0
+    return count[0]
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -827,7 +815,7 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 
 @nb.njit(cache=True, error_model="numpy")
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
-               buf, pbuf, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix):
+               buf, pbuf, count, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
     marginals into out_mix (nodes, K, 3) if it has rows. Returns (status, χ², number of
     components of the smoothed mixture at the first node)."""
@@ -858,7 +846,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     nc = 1
     for k in range(n):
         if k > 0:
-            nc = _propagate(ctx, 1.0, z[k - 1], z[k], buf, nc, nearest, nearest_d, alive, scratch, bh)
+            nc = _propagate(ctx, z[k - 1], z[k], buf, nc, count, nearest, nearest_d, alive, scratch, bh)
             if nc == 0:
                 return STATUS_EXTRAPOLATION_FAILED, chi2, 0
         fwd_n[k] = nc
@@ -894,7 +882,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     n_first = n_last
     for k in range(n - 1, -1, -1):
         if k < n - 1:
-            nc = _propagate(ctx, -1.0, z[k + 1], z[k], buf, nc, nearest, nearest_d, alive, scratch, bh)
+            nc = _propagate(ctx, z[k + 1], z[k], buf, nc, count, nearest, nearest_d, alive, scratch, bh)
             if nc == 0:
                 return STATUS_EXTRAPOLATION_FAILED, chi2, 0
         if active[k]:
@@ -916,81 +904,78 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     return STATUS_OK, chi2, n_first
 
 
-@nb.njit(cache=True, error_model="numpy")
-def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
-                   outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status,
-                   out_chi2, out_ndf, out_n_outliers, out_n_components, out_qop_mixture):
-    """GSF of a batch of tracks (CSR nodes as `pkf.fit.kalman.fit_tracks`) with context ctx;
-    out_qop_mixture (nodes, max_components, 3) receives each node's smoothed q/p marginal
-    mixture, or has no rows (not kept)."""
-    keep = out_qop_mixture.shape[0] > 0
-    n_tracks = offsets.size - 1
-    max_nodes = 1
-    for t in range(n_tracks):
-        max_nodes = max(max_nodes, offsets[t + 1] - offsets[t])
+class GsfFitter(NamedTuple):
+    """The GSF as a fitter of `pkf.fit.driver.fit_tracks`: its context, the per-track
+    component counts, the kept q/p mixtures (nodes, K, 3; no rows: not kept) and scratch
+    for the batch's longest track (`gsf_fitter` allocates it). Outliers are found with
+    the measurement-only fallback: a mixture's covariance ("mean", "max-weight" outputs)
+    can exceed the measurement variance."""
+
+    ctx: tuple
+    measurement_only_fallback: bool
+    out_n_components: np.ndarray
+    out_qop_mixture: np.ndarray
+    buf: tuple
+    pbuf: tuple
+    fwd_w: np.ndarray
+    fwd_mu: np.ndarray
+    fwd_cov: np.ndarray
+    fwd_n: np.ndarray
+    nearest: np.ndarray
+    nearest_d: np.ndarray
+    alive: np.ndarray
+    scratch: np.ndarray
+    bh: np.ndarray
+    vec: np.ndarray
+    count: np.ndarray
+
+
+def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray) -> GsfFitter:
+    """The GSF of context `ctx` for `n_tracks` tracks of up to `n_nodes` nodes, keeping the
+    smoothed q/p mixtures in `qop_mixture` if it has rows."""
     mc = ctx.max_components
     k_bh = ctx.bh_coefficients.shape[1]
     cap = max(mc * max(k_bh, 1), mc * mc, 2)
-    buf = (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)),
-           np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)))
-    pbuf = (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)))
-    fwd_w = np.zeros((max_nodes, mc))
-    fwd_mu = np.zeros((max_nodes, mc, 5))
-    fwd_cov = np.zeros((max_nodes, mc, 5, 5))
-    fwd_n = np.zeros(max_nodes, dtype=np.int64)
-    nearest = np.zeros(cap, dtype=np.int64)
-    nearest_d = np.zeros(cap)
-    alive = np.zeros(cap, dtype=np.bool_)
-    scratch = np.zeros((6, 5, 5))
-    bh = np.zeros((3, max(k_bh, 1)))
-    vec = np.zeros(20)
-    for t in range(n_tracks):
-        lo = offsets[t]
-        hi = offsets[t + 1]
-        n = hi - lo
-        active = out_active[lo:hi]
-        active[:] = True
-        n_out = 0
-        status = STATUS_OK
-        chi2 = 0.0
-        ndf = 0
-        n_comp = 0
-        ok_seed = True
-        for i in range(5):
-            if not math.isfinite(seeds[t, i]):
-                ok_seed = False
-        if not ok_seed:
-            status = STATUS_NO_SEED
-        while status == STATUS_OK:
-            ndf = count_ndf(node_n_meas[lo:hi], active)
-            if ndf <= 0:
-                status = STATUS_TOO_FEW_HITS
-                break
-            status, chi2, n_comp = _fit_track(
-                ctx, node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi], node_m[lo:hi],
-                node_sigma[lo:hi], active, seeds[t], seed_covs[t], fwd_w, fwd_mu, fwd_cov, fwd_n, buf, pbuf,
-                nearest, nearest_d, alive, scratch, bh, vec, out_state[lo:hi], out_cov[lo:hi],
-                out_qop_mixture[lo:hi] if keep else out_qop_mixture)
-            if status != STATUS_OK:
-                break
-            # outliers: the Kalman core's rule; a mixture's covariance ("mean", "max-weight"
-            # outputs) can exceed the measurement variance: then the measurement variance alone
-            status, worst = find_outlier(out_state[lo:hi], out_cov[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi],
-                                         node_hy[lo:hi], node_m[lo:hi], node_sigma[lo:hi], active, outlier_cuts,
-                                         out_node_chi2[lo:hi], True)
-            if n_out < max_outliers and worst >= 0:
-                active[worst] = False
-                n_out += 1
-                continue
-            break
-        if status != STATUS_OK:
-            out_state[lo:hi] = np.nan
-            out_cov[lo:hi] = np.nan
-        out_status[t] = status
-        out_chi2[t] = chi2 if status == STATUS_OK else np.nan
-        out_ndf[t] = ndf
-        out_n_outliers[t] = n_out
-        out_n_components[t] = n_comp
+    return GsfFitter(
+        ctx, True, np.zeros(n_tracks, dtype=np.int64), qop_mixture,
+        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros(cap), np.zeros((cap, 5)),
+         np.zeros((cap, 5, 5))),
+        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5))),
+        np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(cap, dtype=np.bool_),
+        np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64))
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _gsf_begin(f, t, seed):
+    """STATUS_NO_SEED for a non-finite seed."""
+    f.out_n_components[t] = 0
+    for i in range(5):
+        if not math.isfinite(seed[i]):
+            return STATUS_NO_SEED
+    return STATUS_OK
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
+    """`_fit_track` with the fitter's scratch; the component count into out_n_components."""
+    out_mix = f.out_qop_mixture[lo:hi] if f.out_qop_mixture.shape[0] > 0 else f.out_qop_mixture
+    status, chi2, n_comp = _fit_track(f.ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
+                                      f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.nearest_d,
+                                      f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix)
+    f.out_n_components[t] = n_comp
+    return status, chi2
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _gsf_end(f, t, lo, hi, status, out_state, out_cov):
+    """A failed track has NaN states and covariances."""
+    if status != STATUS_OK:
+        out_state[:] = np.nan
+        out_cov[:] = np.nan
+
+
+register_fitter(GsfFitter, _gsf_begin, _gsf_fit, _gsf_end)
 
 
 def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray,
@@ -1004,13 +989,10 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     if options.max_components < 1:
         raise ValueError(f"max_components must be >= 1, not {options.max_components}")
     ctx = extrapolator._replace(max_components=int(options.max_components))
-    result = GsfResult.empty(batch, n_components=np.zeros(batch.n_tracks, dtype=np.int64),
-                             qop_mixture=np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)))
-    gsf_fit_tracks(ctx, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-                   np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
-                   options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
-                   result.node_chi2, result.node_active, result.status, result.chi2, result.ndf,
-                   result.n_outliers, result.n_components, result.qop_mixture)
+    fitter = gsf_fitter(ctx, max_nodes(batch.offsets), batch.n_tracks,
+                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)))
+    result = GsfResult.empty(batch, n_components=fitter.out_n_components, qop_mixture=fitter.out_qop_mixture)
+    run_fitter(fitter, batch, options, seeds, seed_covs, result)
     fit_locations(result, batch, beamline_extrapolator)
     return result
 

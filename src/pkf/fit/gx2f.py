@@ -61,38 +61,31 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 
-from pkf.fit.extrapolator import (
-    STATUS_EXTRAPOLATION_FAILED,
-    STATUS_NO_SEED,
-    STATUS_NOT_POSITIVE_DEFINITE,
-    STATUS_OK,
-    STATUS_TOO_FEW_HITS,
-)
-from pkf.fit.kalman import add_node_information, count_ndf, find_outlier, transport_information
+from pkf.fit.driver import max_nodes, register_fitter
+from pkf.fit.kalman import add_node_information, transport_information
 from pkf.physics.linalg import (
     copy5,
-    copy55,
     invert_spd,
     sandwich,
     search_sorted,
     set_identity,
     symmetrise,
 )
-from pkf.fit.reference import MAX_SLOPE
-from pkf.fit.tracks import FitResult, fit_locations
-from pkf.geometry.acceptance import in_active_area
-from pkf.physics.materials import (
-    SI_X0_MM,
-    apply_energy_loss_to_qop,
-    bethe_mean_loss,
-    energy_loss_qop_derivative,
-    highland_theta0,
+from pkf.fit.propagate import (
+    mean_energy_loss,
+    plane_path_x0,
+    propagate,
+    register_actor,
+    rk4_segment,
+    scattering_width,
 )
-from pkf.physics.transport import rk4_propagate_jacobian
+from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
+from pkf.fit.tracks import FitResult, fit_locations, run_fitter
 
 #: ACTS Gx2FitterOptions defaults (seeds/002).
 MAX_UPDATES = 5
@@ -114,18 +107,6 @@ class GX2FResult(FitResult):
 
 
 @nb.njit(cache=True, inline="always")
-def _left_multiply(seg, a, tmp):
-    """a = seg·a for a 5×5 a (tmp scratch)."""
-    for i in range(5):
-        for j in range(5):
-            s = 0.0
-            for l in range(5):
-                s += seg[i, l] * a[l, j]
-            tmp[i, j] = s
-    copy55(tmp, a)
-
-
-@nb.njit(cache=True, inline="always")
 def _left_multiply_52(seg, g):
     """g = seg·g for a 5×2 g."""
     for c in range(2):
@@ -138,90 +119,103 @@ def _left_multiply_52(seg, g):
             g[i, c] = seg[i, 0] * v0 + seg[i, 1] * v1 + seg[i, 2] * v2 + seg[i, 3] * v3 + seg[i, 4] * v4
 
 
+class ScatteringAngles(NamedTuple):
+    """Propagator actor of the GX2F trajectory, one step k−1 → k at a time (k = cursor[0]):
+    node_state[k] (5) transported in place with the current angles θ applied at each
+    plane, jac[k] (5×5) the step's Jacobian; for the plane slots p (plane index
+    plane_lo + p) crossed so far in this step, from p_first = cursor[1], their G_p
+    (g, 5×2 each, effect of θ_p on the state downstream) and Highland widths theta0
+    (0: no material crossed there); seg, tmp 5×5 scratch. Built once per trajectory."""
+
+    node_state: np.ndarray
+    jac: np.ndarray
+    g: np.ndarray
+    theta: np.ndarray
+    theta0: np.ndarray
+    cursor: np.ndarray
+    plane_lo: int
+    seg: np.ndarray
+    tmp: np.ndarray
+
+
 @nb.njit(cache=True)
-def _segment(ext, s, z_from, z_to, jac, g, p_first, p_end, seg, tmp):
-    """RK4 from z_from to z_to; jac = S·jac and G_p = S·G_p for planes p_first…p_end−1."""
+def _angles_transport(actor, ext, z_from, z_to, crossed):
+    """RK4 segment; jac = S·jac and G_p = S·G_p for the slots crossed so far."""
     if z_to == z_from:
-        return True
-    new = rk4_propagate_jacobian(s, z_from, z_to, ext.max_step, ext.field_kind, ext.field_params,
-                                 ext.field_grid, seg)
-    for i in range(5):
-        if not math.isfinite(new[i]):
-            return False
-        s[i] = new[i]
-    if abs(s[2]) > MAX_SLOPE or abs(s[3]) > MAX_SLOPE:
-        return False
-    _left_multiply(seg, jac, tmp)
-    for p in range(p_first, p_end):
-        _left_multiply_52(seg, g[p])
-    return True
+        return STATUS_OK
+    k = actor.cursor[0]
+    if not rk4_segment(ext, actor.node_state[k], z_from, z_to, actor.seg, actor.jac[k], actor.tmp):
+        return STATUS_EXTRAPOLATION_FAILED
+    p_first = actor.cursor[1]
+    for p in range(p_first, p_first + crossed):
+        _left_multiply_52(actor.seg, actor.g[p])
+    return STATUS_OK
 
 
 @nb.njit(cache=True)
-def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, step_plane, seg, tmp):
+def _angles_interact(actor, ext, k, direction):
+    """Plane k: its slot's Highland width and G = K (module docstring), the Bethe mean loss
+    on q/p (row 4 of jac scaled by ∂qop′/∂qop), then the kick K·θ on the slopes."""
+    s = actor.node_state[actor.cursor[0]]
+    p = k - actor.plane_lo
+    gp = actor.g[p]
+    for i in range(5):
+        gp[i, 0] = 0.0
+        gp[i, 1] = 0.0
+    actor.theta0[p] = 0.0
+    tx = s[2]
+    ty = s[3]
+    qop = s[4]
+    t = plane_path_x0(ext, k, s)
+    if t > 0.0:
+        n2 = 1.0 + tx * tx + ty * ty
+        nn = math.sqrt(n2)
+        actor.theta0[p] = scattering_width(ext, t, qop)
+        r = math.sqrt(1.0 + tx * tx)
+        k00 = nn * r
+        k10 = nn * tx * ty / r
+        k11 = n2 / r
+        gp[2, 0] = k00
+        gp[3, 0] = k10
+        gp[3, 1] = k11
+        if ext.energy_loss:
+            new_qop, d = mean_energy_loss(ext, t, qop, direction)
+            s[4] = new_qop
+            jk = actor.jac[actor.cursor[0]]
+            for j in range(5):
+                jk[4, j] *= d
+            if not math.isfinite(s[4]):
+                return STATUS_EXTRAPOLATION_FAILED
+        s[2] = tx + k00 * actor.theta[p, 0]
+        s[3] = ty + k10 * actor.theta[p, 0] + k11 * actor.theta[p, 1]
+    return STATUS_OK
+
+
+register_actor(ScatteringAngles, _angles_transport, _angles_interact)
+
+
+@nb.njit(cache=True)
+def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, step_plane, seg, tmp, cursor):
     """Trajectory of (α, θ): node states, step Jacobians jac[k] (node k−1 → k), for each
     plane slot p (plane index plane_lo + p) its G_p (5×2, effect of θ_p on the state at
     the next node) and Highland width theta0[p] (0: no material crossed there), and the
-    slots of step k in step_plane[k]…step_plane[k+1]−1. Returns a status code."""
-    s = node_state[0]
-    copy5(alpha, s)
-    n_planes = ext.plane_z.size
-    pz = plane_lo
+    slots of step k in step_plane[k]…step_plane[k+1]−1; cursor (2) int scratch. Returns
+    a status code."""
+    copy5(alpha, node_state[0])
     step_plane[0] = 0
     step_plane[1] = 0
+    actor = ScatteringAngles(node_state, jac, g, theta, theta0, cursor, plane_lo, seg, tmp)
     for k in range(1, n):
-        s_prev = node_state[k - 1]
-        s = node_state[k]
-        copy5(s_prev, s)
-        jk = jac[k]
-        set_identity(jk)
-        p_first = pz - plane_lo
+        copy5(node_state[k - 1], node_state[k])
+        set_identity(jac[k])
+        p_first = search_sorted(ext.plane_z, z[k - 1], True) - plane_lo
         step_plane[k] = p_first
-        zc = z[k - 1]
-        while pz < n_planes and ext.plane_z[pz] <= z[k]:
-            p = pz - plane_lo
-            if not _segment(ext, s, zc, ext.plane_z[pz], jk, g, p_first, p, seg, tmp):
-                return STATUS_EXTRAPOLATION_FAILED
-            zc = ext.plane_z[pz]
-            gp = g[p]
-            for i in range(5):
-                gp[i, 0] = 0.0
-                gp[i, 1] = 0.0
-            theta0[p] = 0.0
-            tx = s[2]
-            ty = s[3]
-            qop = s[4]
-            if qop != 0.0 and in_active_area(
-                    s[0], s[1], ext.plane_half_x[pz], ext.plane_half_y[pz], ext.plane_hole_radius[pz],
-                    ext.plane_hole_half_x[pz], ext.plane_hole_half_y[pz], ext.plane_side[pz],
-                    ext.plane_side_overlap[pz]):
-                n2 = 1.0 + tx * tx + ty * ty
-                nn = math.sqrt(n2)
-                t = ext.plane_x_over_x0[pz] * nn
-                if t > 0.0:
-                    mom = 1.0 / abs(qop)
-                    theta0[p] = highland_theta0(mom, ext.mass, 1.0, t)
-                    r = math.sqrt(1.0 + tx * tx)
-                    k00 = nn * r
-                    k10 = nn * tx * ty / r
-                    k11 = n2 / r
-                    gp[2, 0] = k00
-                    gp[3, 0] = k10
-                    gp[3, 1] = k11
-                    if ext.energy_loss:
-                        delta_e = bethe_mean_loss(mom, ext.mass, t * SI_X0_MM)
-                        d = energy_loss_qop_derivative(qop, ext.mass, delta_e)
-                        s[4] = apply_energy_loss_to_qop(qop, ext.mass, delta_e)
-                        for j in range(5):
-                            jk[4, j] *= d
-                        if not math.isfinite(s[4]):
-                            return STATUS_EXTRAPOLATION_FAILED
-                    s[2] = tx + k00 * theta[p, 0]
-                    s[3] = ty + k10 * theta[p, 0] + k11 * theta[p, 1]
-            pz += 1
-        step_plane[k + 1] = pz - plane_lo
-        if not _segment(ext, s, zc, z[k], jk, g, p_first, pz - plane_lo, seg, tmp):
-            return STATUS_EXTRAPOLATION_FAILED
+        cursor[0] = k
+        cursor[1] = p_first
+        status = propagate(ext, actor, z[k - 1], z[k])
+        if status != STATUS_OK:
+            return status
+        step_plane[k + 1] = search_sorted(ext.plane_z, z[k], True) - plane_lo
     return STATUS_OK
 
 
@@ -368,131 +362,129 @@ def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta
 # ----------------------------------------------------------------------------------
 
 
+class Gx2fFitter(NamedTuple):
+    """The GX2F as a fitter of `pkf.fit.driver.fit_tracks`: the reference extrapolator
+    context, the Gauss–Newton options, the per-track outputs `iterations` and
+    `converged`, and scratch for the batch's longest track and every plane slot
+    (`gx2f_fitter` allocates it). α and θ carry over from a fit to the refit after an
+    outlier (the refit starts from the current solution)."""
+
+    ext: tuple
+    max_updates: int
+    relative_chi2_change: float
+    measurement_only_fallback: bool
+    out_iterations: np.ndarray
+    out_converged: np.ndarray
+    node_state: np.ndarray
+    jac: np.ndarray
+    step_plane: np.ndarray
+    cursor: np.ndarray
+    g: np.ndarray
+    theta: np.ndarray
+    theta0: np.ndarray
+    gain: np.ndarray
+    offset: np.ndarray
+    s_inv: np.ndarray
+    d_theta: np.ndarray
+    alpha: np.ndarray
+    d_alpha: np.ndarray
+    info: np.ndarray
+    vec: np.ndarray
+    yg: np.ndarray
+    tmp: np.ndarray
+    tmp2: np.ndarray
+    tmp3: np.ndarray
+    lu: np.ndarray
+    spd_vec: np.ndarray
+    seg: np.ndarray
+
+
+def gx2f_fitter(ext, n_nodes: int, n_tracks: int, max_updates: int = MAX_UPDATES,
+                relative_chi2_change: float = RELATIVE_CHI2_CHANGE) -> Gx2fFitter:
+    """The GX2F of reference context `ext` for `n_tracks` tracks of up to `n_nodes` nodes."""
+    slots = ext.plane_z.size + 1
+    return Gx2fFitter(
+        ext, int(max_updates), float(relative_chi2_change), False, np.zeros(n_tracks, dtype=np.int64),
+        np.zeros(n_tracks, dtype=np.bool_), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.zeros(n_nodes + 1, dtype=np.int64),
+        np.zeros(2, dtype=np.int64),
+        np.zeros((slots, 5, 2)), np.zeros((slots, 2)), np.zeros(slots), np.empty((slots, 2, 5)),
+        np.empty((slots, 2)), np.empty((slots, 2, 2)), np.zeros((slots, 2)), np.empty(5), np.empty(5),
+        np.empty((5, 5)), np.empty(5), np.empty((5, 2)), np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5)),
+        np.empty((5, 5)), np.empty(10), np.empty((5, 5)))
+
+
 @nb.njit(cache=True)
-def gx2f_fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds,
-                    outlier_cuts, max_outliers, max_updates, relative_chi2_change,
-                    out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2, out_ndf,
-                    out_n_outliers, out_iterations, out_converged):
-    """GX2F of a batch of tracks (CSR nodes, as `pkf.fit.kalman.fit_tracks`) with the
-    reference extrapolator context `ext`; seeds (T, 5) at each first node are the
-    starting parameters (angles start at 0)."""
-    n_tracks = offsets.size - 1
-    max_nodes = 1
-    for t in range(n_tracks):
-        max_nodes = max(max_nodes, offsets[t + 1] - offsets[t])
-    max_slots = ext.plane_z.size + 1
-    node_state = np.empty((max_nodes, 5))
-    jac = np.empty((max_nodes, 5, 5))
-    step_plane = np.zeros(max_nodes + 1, dtype=np.int64)
-    g = np.zeros((max_slots, 5, 2))
-    theta = np.zeros((max_slots, 2))
-    theta0 = np.zeros(max_slots)
-    gain = np.empty((max_slots, 2, 5))
-    offset = np.empty((max_slots, 2))
-    s_inv = np.empty((max_slots, 2, 2))
-    d_theta = np.zeros((max_slots, 2))
-    alpha = np.empty(5)
-    d_alpha = np.empty(5)
-    info = np.empty((5, 5))
-    vec = np.empty(5)
-    yg = np.empty((5, 2))
-    tmp = np.empty((5, 5))
-    tmp2 = np.empty((5, 5))
-    tmp3 = np.empty((5, 5))
-    lu = np.empty((5, 5))
-    spd_vec = np.empty(10)
-    seg = np.empty((5, 5))
-    for t in range(n_tracks):
-        lo = offsets[t]
-        hi = offsets[t + 1]
-        n = hi - lo
-        z = node_z[lo:hi]
-        n_meas = node_n_meas[lo:hi]
-        hx = node_hx[lo:hi]
-        hy = node_hy[lo:hi]
-        m = node_m[lo:hi]
-        sigma = node_sigma[lo:hi]
-        active = out_active[lo:hi]
-        active[:] = True
-        cov = out_cov[lo:hi]
-        status = STATUS_OK
-        chi2 = np.nan
-        n_out = 0
-        updates = 0
-        converged = False
-        ndf = 0
-        plane_lo = search_sorted(ext.plane_z, z[0], True) if n > 0 else 0
-        copy5(seeds[t], alpha)
-        for p in range(max_slots):
-            theta[p, 0] = 0.0
-            theta[p, 1] = 0.0
-        ok_seed = True
-        for i in range(5):
-            if not math.isfinite(alpha[i]):
-                ok_seed = False
-        if not ok_seed:
-            status = STATUS_NO_SEED
-        while status == STATUS_OK:
-            ndf = count_ndf(n_meas, active)
-            if ndf <= 0:
-                status = STATUS_TOO_FEW_HITS
-                break
-            # ---- Gauss–Newton
-            status = _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, step_plane,
-                                seg, tmp)
-            if status != STATUS_OK:
-                break
-            n_slots = step_plane[n] if n > 1 else 0
-            chi2 = _chi2(node_state, n, n_meas, hx, hy, m, sigma, active, theta, theta0, n_slots)
-            updates = 0
-            converged = False
-            while True:
-                if not _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta0,
-                              step_plane, gain, offset, s_inv, d_alpha, d_theta, cov, info, vec, yg, tmp,
-                              tmp2, tmp3, lu, spd_vec):
-                    status = STATUS_NOT_POSITIVE_DEFINITE
-                    break
-                if converged or updates == max_updates:
-                    break  # the covariance of the final trajectory is now in `cov`
-                for i in range(5):
-                    alpha[i] += d_alpha[i]
-                for p in range(n_slots):
-                    theta[p, 0] += d_theta[p, 0]
-                    theta[p, 1] += d_theta[p, 1]
-                updates += 1
-                status = _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0,
-                                    step_plane, seg, tmp)
-                if status != STATUS_OK:
-                    break
-                if step_plane[n] != n_slots:  # (cannot happen: the plane range is fixed by z)
-                    n_slots = step_plane[n]
-                new_chi2 = _chi2(node_state, n, n_meas, hx, hy, m, sigma, active, theta, theta0, n_slots)
-                if abs(new_chi2 - chi2) <= relative_chi2_change * new_chi2:
-                    converged = True
-                chi2 = new_chi2
-            if status != STATUS_OK:
-                break
-            # ---- outliers (the Kalman core's rule)
-            status, worst = find_outlier(node_state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts,
-                                         out_node_chi2[lo:hi], False)
-            if status != STATUS_OK:
-                break
-            if n_out < max_outliers and worst >= 0:
-                active[worst] = False
-                n_out += 1
-                continue
+def _gx2f_begin(f, t, seed):
+    """Start from α = seed, θ = 0; STATUS_NO_SEED for a non-finite seed."""
+    f.out_iterations[t] = 0
+    f.out_converged[t] = False
+    copy5(seed, f.alpha)
+    for p in range(f.theta.shape[0]):
+        f.theta[p, 0] = 0.0
+        f.theta[p, 1] = 0.0
+    for i in range(5):
+        if not math.isfinite(f.alpha[i]):
+            return STATUS_NO_SEED
+    return STATUS_OK
+
+
+@nb.njit(cache=True)
+def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
+    """Gauss–Newton from the current (α, θ) (module docstring): node states of the final
+    trajectory and their covariances into out_state/out_cov; returns (status, χ²)."""
+    n = z.size
+    plane_lo = search_sorted(f.ext.plane_z, z[0], True)
+    chi2 = np.nan
+    status = _propagate(f.ext, f.alpha, f.theta, z, n, plane_lo, f.node_state, f.jac, f.g, f.theta0, f.step_plane,
+                        f.seg, f.tmp, f.cursor)
+    if status != STATUS_OK:
+        return status, chi2
+    n_slots = f.step_plane[n] if n > 1 else 0
+    chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
+    updates = 0
+    converged = False
+    while True:
+        if not _solve(n, n_meas, hx, hy, m, sigma, active, f.node_state, f.jac, f.g, f.theta, f.theta0,
+                      f.step_plane, f.gain, f.offset, f.s_inv, f.d_alpha, f.d_theta, out_cov, f.info, f.vec, f.yg,
+                      f.tmp, f.tmp2, f.tmp3, f.lu, f.spd_vec):
+            status = STATUS_NOT_POSITIVE_DEFINITE
             break
-        if status == STATUS_OK:
-            for k in range(n):
-                copy5(node_state[k], out_state[lo + k])
-        else:
-            cov[:] = np.nan
-        out_status[t] = status
-        out_chi2[t] = chi2 if status == STATUS_OK else np.nan
-        out_ndf[t] = ndf
-        out_n_outliers[t] = n_out
-        out_iterations[t] = updates
-        out_converged[t] = converged and status == STATUS_OK
+        if converged or updates == f.max_updates:
+            break  # the covariance of the final trajectory is now in `out_cov`
+        for i in range(5):
+            f.alpha[i] += f.d_alpha[i]
+        for p in range(n_slots):
+            f.theta[p, 0] += f.d_theta[p, 0]
+            f.theta[p, 1] += f.d_theta[p, 1]
+        updates += 1
+        status = _propagate(f.ext, f.alpha, f.theta, z, n, plane_lo, f.node_state, f.jac, f.g, f.theta0,
+                            f.step_plane, f.seg, f.tmp, f.cursor)
+        if status != STATUS_OK:
+            break
+        if f.step_plane[n] != n_slots:  # (cannot happen: the plane range is fixed by z)
+            n_slots = f.step_plane[n]
+        new_chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
+        if abs(new_chi2 - chi2) <= f.relative_chi2_change * new_chi2:
+            converged = True
+        chi2 = new_chi2
+    f.out_iterations[t] = updates
+    f.out_converged[t] = converged
+    if status == STATUS_OK:
+        for k in range(n):
+            copy5(f.node_state[k], out_state[k])
+    return status, chi2
+
+
+@nb.njit(cache=True)
+def _gx2f_end(f, t, lo, hi, status, out_state, out_cov):
+    """A failed track has NaN states and covariances and is not converged."""
+    if status != STATUS_OK:
+        out_state[:] = np.nan
+        out_cov[:] = np.nan
+        f.out_converged[t] = False
+
+
+register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end)
 
 
 # ----------------------------------------------------------------------------------
@@ -508,12 +500,8 @@ def fit_batch_gx2f(extrapolator, batch, options, seeds: np.ndarray, seed_covs: n
     `seeds` (T, 5) at the first nodes. `options` (`FitOptions`): the outlier cut and
     maximum number of outliers (iterations/smoother do not apply). seed_covs is accepted
     for the common fit signature and unused: the GX2F needs no prior covariance."""
-    t = batch.n_tracks
-    result = GX2FResult.empty(batch, iterations=np.zeros(t, dtype=np.int64), converged=np.zeros(t, dtype=np.bool_))
-    gx2f_fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m,
-                    batch.sigma, np.ascontiguousarray(seeds, dtype=np.float64), options.outlier_cuts(),
-                    int(options.max_outliers), int(max_updates), float(relative_chi2_change),
-                    result.node_state, result.node_cov, result.node_chi2, result.node_active, result.status,
-                    result.chi2, result.ndf, result.n_outliers, result.iterations, result.converged)
+    fitter = gx2f_fitter(extrapolator, max_nodes(batch.offsets), batch.n_tracks, max_updates, relative_chi2_change)
+    result = GX2FResult.empty(batch, iterations=fitter.out_iterations, converged=fitter.out_converged)
+    run_fitter(fitter, batch, options, seeds, np.zeros((batch.n_tracks, 5, 5)), result)
     fit_locations(result, batch, beamline_extrapolator)
     return result

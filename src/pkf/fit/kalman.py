@@ -32,30 +32,29 @@ The first iteration of a track linearises each step at the forward filtered stat
 (extended Kalman filter); later iterations, and refits after an outlier was removed,
 linearise around the previous optimal states (a reference trajectory). Outlier removal: the active node whose
 standardised χ² exceeds its cut by the largest factor is deactivated and the track
-refitted, at most `max_outliers` times; the cut for 2-D (pixel) nodes is the one with
-the same false-removal probability as `--outlier-chi2` for 1-D nodes (9 → 11.83). An outlier node gets no update (its filtered state is the
-prediction) but still receives an optimal state.
+refitted, at most `max_outliers` times (the loop every fitter shares, `pkf.fit.driver`,
+which runs the core as `KalmanFitter`); the cut for 2-D (pixel) nodes is the one with
+the same false-removal probability as `--outlier-chi2` for 1-D nodes (9 → 11.83). An
+outlier node gets no update (its filtered state is the prediction) but still receives
+an optimal state.
 
-Helpers every fitter shares (the GX2F and the GSF call them rather than copy them):
-`scalar_update` (the measurement update), `node_chi2` and `find_outlier` (the outlier
-statistic and the choice of the node to remove), `count_ndf`, `add_node_information` and
-`transport_information` (measurements in information form and their transport upstream).
+Helpers the GX2F and the GSF call rather than copy: `scalar_update` (the measurement
+update), `add_node_information` and `transport_information` (measurements in
+information form and their transport upstream).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 
-from pkf.fit.extrapolator import (
-    STATUS_NOT_POSITIVE_DEFINITE,
-    STATUS_OK,
-    STATUS_TOO_FEW_HITS,
-    extrapolate,
-)
+from pkf.fit.driver import register_fitter
+from pkf.fit.extrapolator import extrapolate
 from pkf.physics.linalg import copy5, copy55, invert_spd, matmul55, sandwich, symmetrise
+from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -132,42 +131,6 @@ def scalar_update(x, p, hx, hy, m, var):
 
 
 @nb.njit(cache=True, inline="always")
-def node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
-    """Standardised χ² r·R⁻¹·r of one node's smoothed residual r = m − H·x, with
-    R = V − H·C·Hᵀ (active node) or V + H·C·Hᵀ (outlier) the residual's covariance;
-    −1 if R is not positive definite. Used to find outliers (`find_outlier`)."""
-    sign = -1.0 if active else 1.0
-    r0 = m[0] - (hx[0] * state[0] + hy[0] * state[1])
-    v0 = sigma[0] * sigma[0]
-    c00 = hx[0] * (hx[0] * cov[0, 0] + hy[0] * cov[0, 1]) + hy[0] * (hx[0] * cov[1, 0] + hy[0] * cov[1, 1])
-    r00 = v0 + sign * c00
-    if n_meas == 1:
-        if not r00 > 0.0:
-            return -1.0
-        return r0 * r0 / r00
-    r1 = m[1] - (hx[1] * state[0] + hy[1] * state[1])
-    v1 = sigma[1] * sigma[1]
-    c11 = hx[1] * (hx[1] * cov[0, 0] + hy[1] * cov[0, 1]) + hy[1] * (hx[1] * cov[1, 0] + hy[1] * cov[1, 1])
-    c01 = hx[0] * (hx[1] * cov[0, 0] + hy[1] * cov[0, 1]) + hy[0] * (hx[1] * cov[1, 0] + hy[1] * cov[1, 1])
-    r11 = v1 + sign * c11
-    r01 = sign * c01
-    det = r00 * r11 - r01 * r01
-    if not (r00 > 0.0 and det > 0.0):
-        return -1.0
-    return (r0 * r0 * r11 - 2.0 * r0 * r1 * r01 + r1 * r1 * r00) / det
-
-
-@nb.njit(cache=True, inline="always")
-def count_ndf(n_meas, active):
-    """ndf = Σ measurement dimensions of the active nodes − 5 (DESIGN §8)."""
-    ndf = -5
-    for k in range(n_meas.size):
-        if active[k]:
-            ndf += n_meas[k]
-    return ndf
-
-
-@nb.njit(cache=True, inline="always")
 def add_node_information(info, info_vec, n_meas, hx, hy, m, sigma, state):
     """Add one node's measurements in information form: Y += Σ_j h_jᵀh_j/σ_j²,
     y += Σ_j h_jᵀ(m_j − h_j·state)/σ_j² (state = 0: the measured values themselves; the
@@ -209,39 +172,6 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
             s += f[l, i] * vec[l]
         tmp_vec[i] = s
     copy5(tmp_vec, vec)
-
-
-@nb.njit(cache=True)
-def find_outlier(state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts, out_node_chi2,
-                 measurement_only_fallback):
-    """Every node's standardised χ² (`node_chi2` of its output state and covariance) into
-    out_node_chi2, and the outlier candidate: the active node whose χ² exceeds its cut
-    (outlier_cuts[dimensions − 1]) by the largest factor.
-
-    Returns (status, candidate index, −1 if no active node exceeds its cut). A residual
-    covariance that is not positive definite gives STATUS_NOT_POSITIVE_DEFINITE, or, with
-    `measurement_only_fallback` (mixture outputs, whose covariance can exceed the
-    measurement variance), the χ² standardised by the measurement variance alone.
-    Shared by every fitter's outlier removal (DESIGN §8): the caller deactivates the
-    candidate and refits, at most `--max-outliers` times.
-    """
-    status = STATUS_OK
-    worst = -1
-    worst_excess = 1.0
-    for k in range(n_meas.size):
-        c_node = node_chi2(state[k], cov[k], n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
-        if c_node < 0.0:
-            if measurement_only_fallback:
-                c_node = node_chi2(state[k], np.zeros((5, 5)), n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
-            else:
-                status = STATUS_NOT_POSITIVE_DEFINITE
-        out_node_chi2[k] = c_node
-        if active[k]:
-            excess = c_node / outlier_cuts[n_meas[k] - 1]
-            if excess > worst_excess:
-                worst_excess = excess
-                worst = k
-    return status, worst
 
 
 @nb.njit(cache=True)
@@ -420,77 +350,69 @@ def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, ma
     return STATUS_OK
 
 
-@nb.njit(cache=True)
-def fit_tracks(ext, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma,
-               seeds, seed_covs, outlier_chi2, max_outliers, n_iterations, smoother,
-               out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2, out_ndf,
-               out_n_outliers):
-    """Fit a batch of tracks (CSR nodes) with extrapolator `ext`.
+class KalmanFitter(NamedTuple):
+    """The Kalman core as a fitter of `pkf.fit.driver.fit_tracks`: the extrapolator
+    context, the number of passes (the 2nd and later linearise around the previous
+    optimal states), the combination (SMOOTHER_*), and per-node scratch for the batch's
+    longest track (`kalman_fitter` allocates it)."""
 
-    Node arrays: node_z [mm] (n), node_n_meas (1 or 2), node_hx/node_hy (n, 2) the
-    measurement directions, node_m (n, 2) measured values [mm], node_sigma (n, 2) [mm].
-    seeds (T, 5) at the first node's z, seed_covs (T, 5, 5). outlier_chi2 (2): the cut on a
-    node's standardised χ² for 1- and 2-dimensional nodes. Outputs: optimal states and
-    covariances per node, each node's χ² contribution and whether it is active (not an
-    outlier), and per track status, χ², ndf and number of removed outliers.
-    """
-    n_tracks = offsets.size - 1
-    max_nodes = 1
-    for t in range(n_tracks):
-        max_nodes = max(max_nodes, offsets[t + 1] - offsets[t])
-    pred = np.empty((max_nodes, 5))
-    pred_cov = np.empty((max_nodes, 5, 5))
-    filt = np.empty((max_nodes, 5))
-    filt_cov = np.empty((max_nodes, 5, 5))
-    jac = np.empty((max_nodes, 5, 5))
-    noise = np.empty((max_nodes, 5, 5))
-    offset = np.empty((max_nodes, 5))
-    ref = np.empty((max_nodes, 5))
-    work = np.empty((6, 5, 5))
-    mats = np.empty((6, 5, 5))
-    vec5 = np.empty(25)
-    perm = np.empty(5, dtype=np.int64)
-    for t in range(n_tracks):
-        lo = offsets[t]
-        hi = offsets[t + 1]
-        n = hi - lo
-        active = out_active[lo:hi]
-        active[:] = True
-        n_out = 0
-        status = STATUS_OK
-        chi2 = 0.0
-        ndf = 0
-        have_reference = False
-        while True:
-            ndf = count_ndf(node_n_meas[lo:hi], active)
-            if ndf <= 0:
-                status = STATUS_TOO_FEW_HITS
-                break
-            for it in range(max(1, n_iterations)):
-                status, chi2 = _fit_once(
-                    ext, node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi],
-                    node_m[lo:hi], node_sigma[lo:hi], active, seeds[t], seed_covs[t], have_reference,
-                    ref, pred, pred_cov, filt, filt_cov, jac, noise, offset, smoother,
-                    out_state[lo:hi], out_cov[lo:hi], work, mats, vec5, perm,
-                )
-                if status != STATUS_OK:
-                    break
-                for k in range(n):
-                    copy5(out_state[lo + k], ref[k])
-                have_reference = True
-            if status != STATUS_OK:
-                break
-            status, worst = find_outlier(out_state[lo:hi], out_cov[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi],
-                                         node_hy[lo:hi], node_m[lo:hi], node_sigma[lo:hi], active, outlier_chi2,
-                                         out_node_chi2[lo:hi], False)
-            if status != STATUS_OK:
-                break
-            if n_out < max_outliers and worst >= 0:
-                active[worst] = False
-                n_out += 1
-                continue
+    ext: tuple
+    n_iterations: int
+    smoother: int
+    measurement_only_fallback: bool
+    have_reference: np.ndarray
+    ref: np.ndarray
+    pred: np.ndarray
+    pred_cov: np.ndarray
+    filt: np.ndarray
+    filt_cov: np.ndarray
+    jac: np.ndarray
+    noise: np.ndarray
+    offset: np.ndarray
+    work: np.ndarray
+    mats: np.ndarray
+    vec5: np.ndarray
+    perm: np.ndarray
+
+
+def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN) -> KalmanFitter:
+    """The Kalman fitter of extrapolator context `ext` with scratch for tracks of up to
+    `n_nodes` nodes."""
+    return KalmanFitter(ext, int(n_iterations), int(smoother), False, np.zeros(1, dtype=np.bool_),
+                        np.empty((n_nodes, 5)), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)),
+                        np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5, 5)),
+                        np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5)), np.empty((6, 5, 5)),
+                        np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64))
+
+
+@nb.njit(cache=True, inline="always")
+def _kalman_begin(f, t, seed):
+    """A new track: the first pass linearises at the forward filtered states."""
+    f.have_reference[0] = False
+    return STATUS_OK
+
+
+@nb.njit(cache=True, inline="always")
+def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
+    """`n_iterations` passes of `_fit_once`; each later pass (and a refit after an
+    outlier) linearises around the previous pass's optimal states."""
+    status = STATUS_OK
+    chi2 = 0.0
+    for it in range(max(1, f.n_iterations)):
+        status, chi2 = _fit_once(f.ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.have_reference[0],
+                                 f.ref, f.pred, f.pred_cov, f.filt, f.filt_cov, f.jac, f.noise, f.offset,
+                                 f.smoother, out_state, out_cov, f.work, f.mats, f.vec5, f.perm)
+        if status != STATUS_OK:
             break
-        out_status[t] = status
-        out_chi2[t] = chi2 if status == STATUS_OK else np.nan
-        out_ndf[t] = ndf
-        out_n_outliers[t] = n_out
+        for k in range(z.size):
+            copy5(out_state[k], f.ref[k])
+        f.have_reference[0] = True
+    return status, chi2
+
+
+@nb.njit(cache=True, inline="always")
+def _kalman_end(f, t, lo, hi, status, out_state, out_cov):
+    """Nothing of its own: the Kalman core's outputs are the driver's."""
+
+
+register_fitter(KalmanFitter, _kalman_begin, _kalman_fit, _kalman_end)

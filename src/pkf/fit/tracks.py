@@ -14,8 +14,9 @@ import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
 from pkf.fit.beamline import beamline_states
-from pkf.fit.extrapolator import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
-from pkf.fit.kalman import SMOOTHER_WEIGHTED_MEAN, fit_tracks
+from pkf.fit.driver import fit_tracks, max_nodes
+from pkf.fit.kalman import SMOOTHER_WEIGHTED_MEAN, kalman_fitter
+from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
 from pkf.fit.seed import seed_tracks
 from pkf.geometry.detector import KIND_PIXEL, Geometry
 
@@ -144,15 +145,22 @@ def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.nd
               seed_covs: np.ndarray, beamline_extrapolator=None) -> FitResult:
     """Fit every track of `batch` with `extrapolator` from the given seeds."""
     result = FitResult.empty(batch)
-    fit_tracks(extrapolator, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m,
-               batch.sigma, np.ascontiguousarray(seeds), np.ascontiguousarray(seed_covs),
-               options.outlier_cuts(), int(options.max_outliers), int(options.iterations),
-               int(options.smoother), result.node_state, result.node_cov, result.node_chi2,
-               result.node_active, result.status, result.chi2, result.ndf, result.n_outliers)
+    fitter = kalman_fitter(extrapolator, max_nodes(batch.offsets), options.iterations, options.smoother)
+    run_fitter(fitter, batch, options, seeds, seed_covs, result)
     bad_seed = ~np.all(np.isfinite(seeds), axis=1)
     result.status[bad_seed] = STATUS_NO_SEED
     fit_locations(result, batch, beamline_extrapolator)
     return result
+
+
+def run_fitter(fitter, batch: TrackBatch, options: FitOptions, seeds: np.ndarray, seed_covs: np.ndarray,
+               result: FitResult) -> None:
+    """Fit every track of `batch` with `fitter` (a registered fitter tuple, `pkf.fit.driver`)
+    into `result`, with the outlier cut and removals of `options`."""
+    fit_tracks(fitter, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+               np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
+               options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
+               result.node_chi2, result.node_active, result.status, result.chi2, result.ndf, result.n_outliers)
 
 
 def fit_locations(result: FitResult, batch: TrackBatch, beamline_extrapolator=None) -> None:

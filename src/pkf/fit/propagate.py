@@ -1,0 +1,239 @@
+"""The propagator of the fitters on the field map: plane navigation, RK4 stepper, material actors.
+
+Modelled on ACTS's Propagator (stepper + navigator + actor list, material applied by
+its MaterialInteractor), with pkf's compile-time dispatch instead of templates:
+
+- Navigator, `propagate(ext, actor, z_from, z_to)`: visits the material planes with
+  z_from < z_plane ≤ z_to (downstream) or z_to < z_plane ≤ z_from (upstream), in
+  flight order, so that a state at a plane is the state downstream of its material
+  (the convention of `pkf.fit.extrapolator`). Between planes it asks the actor to
+  transport, at each plane to interact; a status other than `STATUS_OK` stops it.
+- Actor: a NamedTuple of arrays (the states it carries, its scratch) whose class is
+  registered with `register_actor(cls, transport, interact)`:
+
+      transport(actor, ext, z_from, z_to, crossed) -> status
+      interact(actor, ext, k, direction) -> status
+
+  ``crossed`` is the number of planes crossed so far in this propagation, k the plane
+  index, direction +1.0 downstream and −1.0 upstream. numba resolves the calls to the
+  registered functions when it compiles the caller (`pkf.fit.dispatch`). The actors:
+  `KalmanMaterial` here (one state, its Jacobian and process noise: the reference
+  extrapolator, and each component of the GSF), the scattering-angle actor of the
+  GX2F (`pkf.fit.gx2f`) and the mixture actor of the GSF (`pkf.fit.gsf`).
+- Stepper, `rk4_segment`: RK4 with its Jacobian through the field map for one state.
+- Material, `plane_path_x0`: the path [X0] through a plane where the track crosses its
+  active area (as in the simulation), from which every actor takes its Highland width
+  and Bethe mean loss (`mean_energy_loss`).
+
+``ext`` is the reference extrapolator's context (`pkf.fit.reference.ReferenceExtrapolator`):
+field, RK4 step limit, the planes sorted by z [mm], mass hypothesis [MeV], energy loss on/off.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from pkf.fit.dispatch import dispatched
+from pkf.physics.linalg import copy55, matmul55, sandwich, search_sorted
+from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_OK
+from pkf.geometry.acceptance import in_active_area
+from pkf.physics.materials import (
+    SI_X0_MM,
+    apply_energy_loss_to_qop,
+    bethe_mean_loss,
+    energy_loss_qop_derivative,
+    highland_theta0,
+    path_length_x0,
+    scattering_noise,
+)
+from pkf.physics.transport import rk4_propagate_jacobian
+
+#: Largest |tx|, |ty| a transported state may reach (the simulation envelope, DESIGN §5).
+MAX_SLOPE = 10.0
+
+transport = dispatched("transport", "actor, ext, z_from, z_to, crossed",
+                       "Move the actor's state(s) from z_from to z_to [mm]; returns a status code.")
+interact = dispatched("interact", "actor, ext, k, direction",
+                      "Material of plane k crossed in `direction` (±1.0); returns a status code.")
+
+
+def register_actor(actor_class: type, transport_function, interact_function) -> None:
+    """Make the njit functions the transport and interaction of actors of `actor_class`."""
+    transport.register(actor_class, transport_function)
+    interact.register(actor_class, interact_function)
+
+
+# ----------------------------------------------------------------------------------
+# Navigator
+# ----------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True, inline="always")
+def _before_end(plane_z, z_to, forward):
+    """Whether a plane at plane_z lies in the half-open range still to be crossed."""
+    return plane_z <= z_to if forward else plane_z > z_to
+
+
+@nb.njit(cache=True, inline="always")
+def propagate(ext, actor, z_from, z_to):
+    """Transport `actor` from z_from to z_to [mm] through the material planes in between
+    (see the module docstring). Returns the first status other than STATUS_OK, or the
+    last segment's status."""
+    plane_z = ext.plane_z
+    forward = z_to > z_from
+    direction = 1.0 if forward else -1.0
+    k = search_sorted(plane_z, z_from, True)  # first plane with z > z_from
+    if not forward:
+        k -= 1  # last plane with z <= z_from
+    z = z_from
+    crossed = 0
+    while 0 <= k < plane_z.size and _before_end(plane_z[k], z_to, forward):
+        status = transport(actor, ext, z, plane_z[k], crossed)
+        if status != STATUS_OK:
+            return status
+        z = plane_z[k]
+        status = interact(actor, ext, k, direction)
+        if status != STATUS_OK:
+            return status
+        crossed += 1
+        k += 1 if forward else -1
+    return transport(actor, ext, z, z_to, crossed)
+
+
+# ----------------------------------------------------------------------------------
+# Stepper
+# ----------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True, inline="always")
+def in_envelope(state):
+    """Whether a transported state is finite with |tx|, |ty| ≤ MAX_SLOPE (beyond, the
+    track curls away from z: outside what a z-parametrised state describes)."""
+    for i in range(5):
+        if not math.isfinite(state[i]):
+            return False
+    return not (abs(state[2]) > MAX_SLOPE or abs(state[3]) > MAX_SLOPE)
+
+
+@nb.njit(cache=True, inline="always")
+def rk4_segment(ext, state, z_from, z_to, seg, jac, tmp):
+    """RK4 of `state` (x, y, tx, ty, q/p) from z_from to z_to ≠ z_from [mm] through the
+    field; seg receives the segment's Jacobian S and jac ← S·jac (tmp 5×5 scratch).
+    False if the state leaves the envelope (`in_envelope`)."""
+    new = rk4_propagate_jacobian(state, z_from, z_to, ext.max_step, ext.field_kind, ext.field_params,
+                                 ext.field_grid, seg)
+    for i in range(5):
+        state[i] = new[i]
+    if not in_envelope(state):
+        return False
+    matmul55(seg, jac, tmp)
+    copy55(tmp, jac)
+    return True
+
+
+# ----------------------------------------------------------------------------------
+# Material
+# ----------------------------------------------------------------------------------
+
+
+@nb.njit(cache=True, inline="always")
+def plane_path_x0(ext, k, state):
+    """Path t [X0] of the track at `state` through plane k, x/X0·√(1 + tx² + ty²); 0 where
+    it misses the plane's active area or has q/p = 0 (no momentum to scatter)."""
+    if not in_active_area(state[0], state[1], ext.plane_half_x[k], ext.plane_half_y[k],
+                          ext.plane_hole_radius[k], ext.plane_hole_half_x[k], ext.plane_hole_half_y[k],
+                          ext.plane_side[k], ext.plane_side_overlap[k]):
+        return 0.0
+    if state[4] == 0.0:
+        return 0.0
+    return path_length_x0(ext.plane_x_over_x0[k], state[2], state[3])
+
+
+@nb.njit(cache=True, inline="always")
+def scattering_width(ext, t, qop):
+    """Highland width θ0 [rad] of the projected angle after t [X0] at q/p [1/MeV] ≠ 0."""
+    return highland_theta0(1.0 / abs(qop), ext.mass, 1.0, t)
+
+
+@nb.njit(cache=True, inline="always")
+def mean_energy_loss(ext, t, qop, direction):
+    """(q/p′, ∂q/p′/∂q/p) after the Bethe mean loss in t [X0] of silicon at q/p [1/MeV] ≠ 0:
+    energy lost going downstream (direction +1.0), regained going upstream (−1.0)."""
+    p = 1.0 / abs(qop)
+    delta_e = direction * bethe_mean_loss(p, ext.mass, t * SI_X0_MM)
+    d = energy_loss_qop_derivative(qop, ext.mass, delta_e)
+    return apply_energy_loss_to_qop(qop, ext.mass, delta_e), d
+
+
+@nb.njit(cache=True, inline="always")
+def add_plane_material(ext, k, state, direction, jac, noise):
+    """Material of plane k at `state` crossed in `direction` (±1.0), Kalman form.
+
+    Adds the Highland slope noise (`scattering_noise`) to `noise` and, with energy loss
+    on, changes q/p in `state` by the Bethe mean loss and scales row 4 of `jac` and
+    row/column 4 of `noise` by ∂qop′/∂qop. Nothing where the plane is not crossed.
+    """
+    t = plane_path_x0(ext, k, state)
+    if t <= 0.0:
+        return
+    tx = state[2]
+    ty = state[3]
+    qop = state[4]
+    theta0 = scattering_width(ext, t, qop)
+    q_txtx, q_txty, q_tyty = scattering_noise(tx, ty, theta0 * theta0)
+    noise[2, 2] += q_txtx
+    noise[3, 3] += q_tyty
+    noise[2, 3] += q_txty
+    noise[3, 2] += q_txty
+    if ext.energy_loss:
+        new_qop, d = mean_energy_loss(ext, t, qop, direction)
+        state[4] = new_qop
+        for j in range(5):
+            jac[4, j] *= d
+            noise[4, j] *= d
+            noise[j, 4] *= d
+
+
+# ----------------------------------------------------------------------------------
+# The Kalman actor: one state, its transport Jacobian and process noise
+# ----------------------------------------------------------------------------------
+
+
+class KalmanMaterial(NamedTuple):
+    """Actor of a Kalman extrapolation: `state` (5) transported in place, `jac` (5×5)
+    accumulating the transport Jacobian, `noise` (5×5) the process noise Q at the end
+    point (C_out = F·C·Fᵀ + Q), work (≥ 3, 5, 5) scratch. (Actors hold few arrays: each
+    is reference-counted when the actor is built, once per propagation.)"""
+
+    state: np.ndarray
+    jac: np.ndarray
+    noise: np.ndarray
+    work: np.ndarray
+
+
+@nb.njit(cache=True, inline="always")
+def _kalman_transport(actor, ext, z_from, z_to, crossed):
+    """RK4 segment; jac ← S·jac, noise ← S·noise·Sᵀ."""
+    if z_to == z_from:
+        return STATUS_OK
+    seg = actor.work[0]
+    tmp = actor.work[1]
+    tmp2 = actor.work[2]
+    if not rk4_segment(ext, actor.state, z_from, z_to, seg, actor.jac, tmp):
+        return STATUS_EXTRAPOLATION_FAILED
+    sandwich(seg, actor.noise, tmp, tmp2)
+    copy55(tmp2, actor.noise)
+    return STATUS_OK
+
+
+@nb.njit(cache=True, inline="always")
+def _kalman_interact(actor, ext, k, direction):
+    add_plane_material(ext, k, actor.state, direction, actor.jac, actor.noise)
+    return STATUS_OK
+
+
+register_actor(KalmanMaterial, _kalman_transport, _kalman_interact)
