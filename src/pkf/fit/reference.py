@@ -1,8 +1,8 @@
-"""The reference ("default Kalman") extrapolator: Runge–Kutta through the field map (DESIGN §9.1).
+"""The reference ("default Kalman") extrapolator: Runge–Kutta through the field map (docs/physics.md#the-reference-fitter-two-passes).
 
 Between two nodes the state is transported by RK4 with its Jacobian (paper §3: the
 default LHCb Kalman filter), stopping at every material plane in between: Highland
-scattering noise is added on the slopes (DESIGN §4) and the Bethe mean energy loss is
+scattering noise is added on the slopes (docs/physics.md#material-effects) and the Bethe mean energy loss is
 applied to q/p (energy lost going downstream, regained going upstream), for a mass
 hypothesis (pion by default). A plane's material counts only where the track crosses
 its active area, as in the simulation.
@@ -32,7 +32,7 @@ from pkf.physics.constants import MASS_PION
 
 #: Longest RK4 step [mm] of the reference extrapolation.
 REFERENCE_MAX_STEP = 100.0
-#: Largest |tx|, |ty| a transported state may reach (the simulation envelope, DESIGN §5).
+#: Largest |tx|, |ty| a transported state may reach (the simulation envelope, docs/physics.md#simulation).
 MAX_SLOPE = 10.0
 
 
