@@ -1,6 +1,6 @@
 """pkf: track reconstruction with hit triplets and the LHCb parametrized Kalman filter.
 
-Units everywhere: mm, MeV (c = 1), tesla, rad (DESIGN §2).
+Units everywhere: mm, MeV (c = 1), tesla, rad (docs/formats.md#conventions).
 """
 
 import hashlib

@@ -4,7 +4,7 @@
 class InputError(Exception):
     """Bad usage or bad input: the message is one line that names what is wrong.
 
-    The CLI prints it on stderr and exits with code 2 (DESIGN §1.1, §13).
+    The CLI prints it on stderr and exits with code 2 (docs/cli.md#exit-codes-and-messages).
     """
 
 

@@ -1,4 +1,4 @@
-"""The beamline state: straight line to the point of closest approach to the z axis (DESIGN §8).
+"""The beamline state: straight line to the point of closest approach to the z axis (docs/physics.md#the-kalman-core).
 
 The same code for every fitter, as in the paper: from the optimal state at the first
 hit, a straight-line extrapolation to z_pca = z − (x·tx + y·ty)/(tx² + ty²), adding the

@@ -1,6 +1,6 @@
 """The track loop every fitter shares: count ndf → fit → find the outlier → deactivate → refit.
 
-DESIGN §8: after a fit, the active node whose standardised χ² exceeds its cut by the
+docs/physics.md#the-kalman-core: after a fit, the active node whose standardised χ² exceeds its cut by the
 largest factor (`pkf.fit.kalman.find_outlier`) is deactivated and the track refitted,
 at most ``max_outliers`` times; a track with ndf ≤ 0 has status "too few hits".
 
@@ -64,7 +64,7 @@ def node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
 
 @nb.njit(cache=True, inline="always")
 def count_ndf(n_meas, active):
-    """ndf = Σ measurement dimensions of the active nodes − 5 (DESIGN §8)."""
+    """ndf = Σ measurement dimensions of the active nodes − 5 (docs/physics.md#the-kalman-core)."""
     ndf = -5
     for k in range(n_meas.size):
         if active[k]:
@@ -83,7 +83,7 @@ def find_outlier(state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts, out
     covariance that is not positive definite gives STATUS_NOT_POSITIVE_DEFINITE, or, with
     `measurement_only_fallback` (mixture outputs, whose covariance can exceed the
     measurement variance), the χ² standardised by the measurement variance alone.
-    Shared by every fitter's outlier removal (DESIGN §8): the caller deactivates the
+    Shared by every fitter's outlier removal (docs/physics.md#the-kalman-core): the caller deactivates the
     candidate and refits, at most `--max-outliers` times.
     """
     status = STATUS_OK

@@ -1,4 +1,4 @@
-"""The extrapolator interface of the Kalman core and its registry (DESIGN §8, §9).
+"""The extrapolator interface of the Kalman core and its registry (docs/physics.md#the-kalman-core, docs/physics.md#the-parametrized-fitter).
 
 An extrapolator is a typed NamedTuple of arrays and numbers (its "context") plus a
 compiled step function registered for that NamedTuple class:

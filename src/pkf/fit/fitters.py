@@ -6,7 +6,7 @@ momentum at production (the parametrized fitter, paper §3), which decides the t
 its pulls are computed against, and which fit function runs it: the one Kalman core
 (`fit_batch`) for the Kalman fitters, `fit_batch_gx2f` for the global χ² fitter (on the
 reference extrapolator) and `fit_batch_gsf` for the Gaussian-sum filter (electron
-hypothesis, DESIGN §9.4–§9.5). Every fit function has the signature
+hypothesis, docs/physics.md#the-global-χ²-fitter-gx2f). Every fit function has the signature
 ``fit(extrapolator, batch, options, seeds, seed_covs, beamline_extrapolator) -> FitResult``.
 """
 

@@ -1,4 +1,4 @@
-"""The Gaussian-sum filter (GSF) for electrons (DESIGN §9.5, seeds/002).
+"""The Gaussian-sum filter (GSF) for electrons (docs/physics.md#the-gaussian-sum-filter-gsf-and-the-bethe-heitler-mixture, seeds/002).
 
 The track state is a Gaussian mixture Σ_c w_c·N(μ_c, P_c) over (x, y, tx, ty, q/p).
 Transport and material are those of the reference extrapolator (`pkf.fit.reference`)
@@ -154,7 +154,7 @@ OUTPUTS = {"core": OUTPUT_CORE, "mode": OUTPUT_MODE, "mean": OUTPUT_MEAN, "max-w
 _CORE_WINDOW = 3.0
 _CORE_TRUNCATED_VARIANCE = 1.0 - 2.0 * _CORE_WINDOW * math.exp(-0.5 * _CORE_WINDOW**2) / math.sqrt(
     2.0 * math.pi) / math.erf(_CORE_WINDOW / math.sqrt(2.0))
-#: ACTS defaults (DESIGN §15).
+#: ACTS defaults (docs/physics.md).
 MAX_COMPONENTS = 12
 WEIGHT_CUT = 1e-4
 #: Vague prior of the backward filter (see the module docstring).

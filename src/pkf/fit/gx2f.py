@@ -1,11 +1,11 @@
-"""The global χ² fitter (GX2F, DESIGN §9.4, seeds/002): track parameters plus scattering angles.
+"""The global χ² fitter (GX2F, docs/physics.md#the-global-χ²-fitter-gx2f, seeds/002): track parameters plus scattering angles.
 
 Unknowns of a track: the five parameters α = (x, y, tx, ty, q/p) at its first node
 and two scattering angles θ_j = (θ1, θ2) at every material plane j it crosses between
 its first and last node (z_first < z_j ≤ z_last, only where it crosses the plane's
 active area, as in the reference extrapolator). θ1, θ2 are the projected angles
 along u = (1, 0, −tx)/√(1+tx²) and v = d × u (d the direction; the convention of
-`pkf.physics.materials.deflect`); each has the Highland width θ0_j (DESIGN §4) as a
+`pkf.physics.materials.deflect`); each has the Highland width θ0_j (docs/physics.md#material-effects) as a
 Gaussian prior. Minimised:
 
     χ²(α, θ) = Σ_nodes Σ_meas (m − h·s_k(α, θ))²/σ² + Σ_planes |θ_j|²/θ0_j²
@@ -17,7 +17,7 @@ hypothesis, exactly as `pkf.fit.reference`). At plane j the slopes receive the k
 
     K = [[N·√(1+tx²), 0], [N·tx·ty/√(1+tx²), N²/√(1+tx²)]],  N = √(1+tx²+ty²),
 
-for which θ0²·K·Kᵀ is the Kalman fitters' thin-scatterer noise Q (DESIGN §4), so
+for which θ0²·K·Kᵀ is the Kalman fitters' thin-scatterer noise Q (docs/physics.md#material-effects), so
 the two fitters minimise the same χ² and their states agree at convergence.
 
 Gauss–Newton (ACTS `nUpdateMax` = 5, `relChi2changeCutOff` = 1e−7): propagate

@@ -1,4 +1,4 @@
-"""The Kalman core: forward filter, backward filter, optimal states, χ², outliers (DESIGN §8).
+"""The Kalman core: forward filter, backward filter, optimal states, χ², outliers (docs/physics.md#the-kalman-core).
 
 One compiled core for every Kalman fitter; the extrapolator is passed in (a NamedTuple
 context, see `pkf.fit.extrapolator`). Tracks come in batches as CSR arrays: the nodes
@@ -23,7 +23,7 @@ Per iteration:
 4. Track χ² = the sum of the forward filter's increments r_k|k−1ᵀ S_k⁻¹ r_k|k−1 (paper
    eq. 9), which for a linear Gaussian model equals the smoothed measurement residuals'
    χ² plus the χ² of the fitted scattering kinks and follows χ²(ndf), ndf = Σ
-   measurement dimensions − 5. DESIGN §8 wrote Σ r_kᵀ R_k⁻¹ r_k with the smoothed
+   measurement dimensions − 5. docs/physics.md#the-kalman-core wrote Σ r_kᵀ R_k⁻¹ r_k with the smoothed
    residuals and R = V − H·C·Hᵀ: that sum has mean Σ dimensions, not ndf (measured:
    χ²/ndf = 1.34 on telescope tracks), so it serves only as each node's standardised
    χ² for the outlier test.

@@ -52,7 +52,7 @@ from pkf.physics.materials import (
 )
 from pkf.physics.transport import rk4_propagate_jacobian
 
-#: Largest |tx|, |ty| a transported state may reach (the simulation envelope, DESIGN §5).
+#: Largest |tx|, |ty| a transported state may reach (the simulation envelope, docs/physics.md#simulation).
 MAX_SLOPE = 10.0
 
 transport = dispatched("transport", "actor, ext, z_from, z_to, crossed",

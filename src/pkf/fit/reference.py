@@ -1,8 +1,8 @@
-"""The reference ("default Kalman") extrapolator: Runge–Kutta through the field map (DESIGN §9.1).
+"""The reference ("default Kalman") extrapolator: Runge–Kutta through the field map (docs/physics.md#the-reference-fitter-two-passes).
 
 Between two nodes the state is transported by RK4 with its Jacobian (paper §3: the
 default LHCb Kalman filter), stopping at every material plane in between: Highland
-scattering noise is added on the slopes (DESIGN §4) and the Bethe mean energy loss is
+scattering noise is added on the slopes (docs/physics.md#material-effects) and the Bethe mean energy loss is
 applied to q/p (energy lost going downstream, regained going upstream), for a mass
 hypothesis (pion by default). A plane's material counts only where the track crosses
 its active area, as in the simulation.

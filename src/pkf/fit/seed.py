@@ -6,12 +6,12 @@ first node. Model (linear in the five parameters at z_ref = first node's z):
     x(z) = x0 + tx0·(z − z_ref) + qop·Kx(z),   y(z) = y0 + ty0·(z − z_ref) + qop·Ky(z)
 
 with Kx, Ky the double integrals over z of the equations of motion per unit q/p
-(DESIGN §2), evaluated along the straight line of the track's first hits. Each
+(docs/formats.md#conventions), evaluated along the straight line of the track's first hits. Each
 measurement u = hx·x + hy·y enters with weight 1/σ². Multiple scattering is ignored,
 which is harmless for a seed. A weak prior |q/p| ≲ 1/(100 MeV) keeps tracks without
 field integral (straight lines) solvable; their q/p variance then says so.
 
-Seed covariance for the Kalman filter (DESIGN §8, documented choice):
+Seed covariance for the Kalman filter (docs/physics.md#the-kalman-core, documented choice):
 diag(100 mm², 100 mm², 0.01, 0.01, (0.1·q/p)² + σ²_LSQ(q/p)) — loose in position and
 slope (the first measurements fix them), a 10% q/p prior, which the data outweigh by two
 orders of magnitude for long tracks, widened by the least-squares q/p variance for

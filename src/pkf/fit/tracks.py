@@ -82,7 +82,7 @@ class TrackBatch:
 
 @dataclass(frozen=True)
 class FitOptions:
-    """Options of the fit (DESIGN §8, §9.5): outlier χ² cut and maximum number removed,
+    """Options of the fit (docs/physics.md#the-kalman-core): outlier χ² cut and maximum number removed,
     iterations of the Kalman fitters (the 2nd and later linearise around the previous
     optimal states), their combination method (weighted mean, or the RTS smoother), and
     the Gaussian-sum filter's largest number of mixture components (`--max-components`)."""
@@ -166,7 +166,7 @@ def run_fitter(fitter, batch: TrackBatch, options: FitOptions, seeds: np.ndarray
 def fit_locations(result: FitResult, batch: TrackBatch, beamline_extrapolator=None) -> None:
     """Add the first-hit and last-hit states and, given a beamline extrapolator, the
     beamline state of the tracks with status ok (`beamline_states`, the same code for
-    every fitter, DESIGN §8) to `result.locations`: name → (z, state (T, 5), cov (T, 5, 5))."""
+    every fitter, docs/physics.md#the-kalman-core) to `result.locations`: name → (z, state (T, 5), cov (T, 5, 5))."""
     t = batch.n_tracks
     has_nodes = batch.n_nodes > 0
     first = np.where(has_nodes, batch.offsets[:-1], 0)

@@ -1,10 +1,10 @@
 """Detector description: layers, passive planes, field and step types from a TOML file.
 
-A geometry file (DESIGN §3, built-ins in ``pkf/geometry/data``) holds groups of layers
+A geometry file (docs/geometry.md, built-ins in ``pkf/geometry/data``) holds groups of layers
 (``[[layers]]``, one layer per z value of the group), passive material planes
 (``[[passive]]``), the field model (``[field]``), optionally the field-map grid
 (``[field_map]``), the transport envelope (``[envelope]``) and the parametrized
-extrapolation type of each step between subdetectors (``[[steps]]``, DESIGN §9.2).
+extrapolation type of each step between subdetectors (``[[steps]]``, docs/physics.md#the-parametrized-fitter).
 Units: mm, tesla, degrees for ``stereo_deg`` only.
 """
 
@@ -48,7 +48,7 @@ _TOP_KEYS = {"name", "description", "field", "field_map", "envelope", "layers", 
 
 @dataclass(frozen=True)
 class Envelope:
-    """Where transport stops (DESIGN §5): |x| or |y| > half_width [mm], |tx| or |ty| >
+    """Where transport stops (docs/physics.md#simulation): |x| or |y| > half_width [mm], |tx| or |ty| >
     max_slope, or p < min_momentum [MeV]."""
 
     half_width: float = 4000.0

@@ -2,7 +2,7 @@
 
 A table ``NAME`` of a dataset (or run) directory ``DIR`` is either one Parquet file
 ``DIR/NAME.parquet`` or a directory ``DIR/NAME/`` of Parquet files with the same
-schema (DESIGN §6). The reader checks, before any work is done (DESIGN §13):
+schema (docs/formats.md). The reader checks, before any work is done (docs/cli.md#exit-codes-and-messages):
 missing columns (extra ones are ignored, and listed), dtypes, nulls in non-nullable columns, NaN/inf in measured
 values, errors below 1 nm, particles without momentum or with ids the MC matching
 cannot key, sorting by ``event_id``, duplicate ids, empty hit tables, and truncated or
@@ -583,7 +583,7 @@ def read_table(path: str | os.PathLike, schema: pa.Schema, *, name: str) -> pa.T
     return table
 
 
-#: Hits may lie this many of their own σ outside their layer's active area (DESIGN §13) ...
+#: Hits may lie this many of their own σ outside their layer's active area (docs/cli.md#exit-codes-and-messages) ...
 AREA_TOLERANCE_SIGMAS = 5.0
 #: ... plus this margin [mm], for a producer whose placement of the layers differs from the
 #: nominal geometry by a fraction of a millimetre (real modules are aligned to better).
@@ -914,7 +914,7 @@ def find_truth_tables(dataset_dir: str | os.PathLike) -> dict[str, Path | None]:
 
 @dataclass(frozen=True)
 class Dataset:
-    """A validated dataset directory (DESIGN §6).
+    """A validated dataset directory (docs/formats.md).
 
     Attributes:
         path: the dataset directory.

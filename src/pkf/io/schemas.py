@@ -1,15 +1,15 @@
-"""Arrow/Parquet schemas of every pkf table (DESIGN §6), their validation rules and table builders.
+"""Arrow/Parquet schemas of every pkf table (docs/formats.md), their validation rules and table builders.
 
 Dataset tables (written by ``pkf simulate``): :data:`HITS`, :data:`PARTICLES`,
 :data:`MC_HITS`. Run tables (written by ``pkf reconstruct``): :data:`CHI2`,
 :data:`CANDIDATES`, :data:`STATES`, :data:`PULLS`.
 
-Units (DESIGN §2): lengths in mm, momenta and masses in MeV, ``qop`` in 1/MeV,
+Units (docs/formats.md#conventions): lengths in mm, momenta and masses in MeV, ``qop`` in 1/MeV,
 slopes ``tx = dx/dz``, ``ty = dy/dz`` dimensionless.
 
 Every schema carries the metadata key ``pkf.table`` (its table name); the reader
 uses it to find the table's validation rules (:data:`TABLE_SPECS`). A column is
-nullable only where §6 allows a missing value (``v``/``sigma_v`` of strip hits,
+nullable only where docs/formats.md allows a missing value (``v``/``sigma_v`` of strip hits,
 the true slopes and ``qop`` of noise hits in ``mc_hits``). Run-table floats are not
 nullable: a failed fit writes NaN and says why in ``status``.
 """
@@ -51,13 +51,13 @@ _I64 = pa.int64()
 _I16 = pa.int16()
 _STR = pa.string()
 
-#: The five track parameters in state-vector order (DESIGN §2).
+#: The five track parameters in state-vector order (docs/formats.md#conventions).
 STATE_COLUMNS: tuple[str, ...] = ("x", "y", "tx", "ty", "qop")
 
-#: The 15 upper-triangle covariance elements, row-major: c00 c01 … c04 c11 … c44 (DESIGN §2).
+#: The 15 upper-triangle covariance elements, row-major: c00 c01 … c04 c11 … c44 (docs/formats.md#conventions).
 COV_COLUMNS: tuple[str, ...] = tuple(f"c{i}{j}" for i in range(5) for j in range(i, 5))
 
-#: Values of the ``location`` column of ``states`` and ``pulls`` (DESIGN §8).
+#: Values of the ``location`` column of ``states`` and ``pulls`` (docs/physics.md#the-kalman-core).
 STATE_LOCATIONS: tuple[str, ...] = ("first_hit", "last_hit", "beamline")
 
 _TRIU = np.triu_indices(5)
@@ -313,7 +313,7 @@ def spec_for(schema: pa.Schema) -> TableSpec | None:
 
 
 def pack_covariance(cov: np.ndarray) -> dict[str, np.ndarray]:
-    """Split covariance matrices into the 15 columns ``c00 … c44`` (DESIGN §2).
+    """Split covariance matrices into the 15 columns ``c00 … c44`` (docs/formats.md#conventions).
 
     Args:
         cov: array of shape (n, 5, 5) (or (5, 5) for one matrix), in the units of

@@ -1,4 +1,4 @@
-"""Streaming validation and row-range reading of big tables (DESIGN §6, §13), in bounded memory.
+"""Streaming validation and row-range reading of big tables (docs/formats.md, docs/cli.md#exit-codes-and-messages), in bounded memory.
 
 A table (one Parquet file or a directory of them) is scanned record batch by record
 batch: every check of :mod:`pkf.io.reader` is applied to each batch, and the checks

@@ -16,8 +16,8 @@ s = 2·(ln t − ln t_min)/(ln t_max − ln t_min) − 1 ∈ [−1, 1]:
   0.9 below z = 1 and never above it),
 - widths:  σ_k = d_k·exp(g_k(s)) ("log_relative_width").
 
-Evaluation (`bethe_heitler_components`, compiled) follows the ACTS shortcuts (DESIGN
-§15): t < 1e−4 no loss; t < t_min = 0.002 a single Gaussian with the exact mean 2^(−c)
+Evaluation (`bethe_heitler_components`, compiled) follows the ACTS shortcuts
+(docs/physics.md): t < 1e−4 no loss; t < t_min = 0.002 a single Gaussian with the exact mean 2^(−c)
 and variance 3^(−c) − 4^(−c); t > t_max = 0.2 is clipped to t_max.
 
 How good it is: the CDF of the mixture is compared with the true CDF on the z grid

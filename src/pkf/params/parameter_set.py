@@ -29,7 +29,7 @@ FORMAT = "pkf-params/1"
 
 @dataclass(frozen=True)
 class SlotStructure:
-    """Which step leaves each layer (DESIGN §9.2, from the geometry's [[steps]] table)."""
+    """Which step leaves each layer (docs/physics.md#the-parametrized-fitter, from the geometry's [[steps]] table)."""
 
     layer_sub: np.ndarray
     sub_first: np.ndarray
@@ -165,8 +165,8 @@ def _read_parameter_json(path: Path) -> dict:
     return data
 
 
-#: Fewest extrapolation coefficients each step type reads (its formula's parameters; DESIGN
-#: §9.2): velo p0–p1 (paper eq. 10), velo_to_ut p0–p8 (eqs. 15–20), ut/scifi p0–p14 (eq. 14
+#: Fewest extrapolation coefficients each step type reads (its formula's parameters;
+#: docs/parameters.md): velo p0–p1 (paper eq. 10), velo_to_ut p0–p8 (eqs. 15–20), ut/scifi p0–p14 (eq. 14
 #: with the slope and field-shape terms; the degree-4 monomials p15–p49 may be absent, as in
 #: files tuned before them: absent coefficients are zero), ut_to_scifi p0 (the energy lost
 #: before the table step).

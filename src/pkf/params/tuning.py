@@ -1,4 +1,4 @@
-"""Tuning of the parametrized extrapolations on simulation (paper §4, DESIGN §9.3).
+"""Tuning of the parametrized extrapolations on simulation (paper §4, docs/parameters.md#how-the-coefficients-are-tuned).
 
 Data set D: consecutive true states of each MC particle (mc_hits, with q/p replaced by
 the production q/p that the parametrized state carries) plus the reference

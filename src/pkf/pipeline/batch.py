@@ -1,6 +1,6 @@
 """Reconstruction of one batch of events: pattern recognition, fits, MC matching, run-table rows.
 
-The unit of work of `pkf reconstruct` (DESIGN §6–§10): a worker gets a batch's hits and
+The unit of work of `pkf reconstruct` (docs/formats.md): a worker gets a batch's hits and
 MC truth, returns its rows of ``candidates``, ``chi2``, ``states``, ``pulls`` and a small
 summary (counts, timing, pattern-recognition counts) that adds up over batches. The
 output of a batch depends only on its events, so any split into batches and any number
@@ -126,7 +126,7 @@ def _warm_up(fitters_ext, batch: TrackBatch, seeds, covs, options, beamline_ext)
         fitter.fit(ext, small, options[fitter.name], seeds[:n], covs[:n], beamline_ext)
 
 
-#: Momentum bins [MeV] of the efficiencies in run.json (DESIGN §10; issue 5's targets are
+#: Momentum bins [MeV] of the efficiencies in run.json (docs/physics.md#matching-and-metrics; issue 5's targets are
 #: quoted for 2–5 GeV and p > 5 GeV).
 P_BINS = ((0.0, 1000.0, "p_lt_1GeV"), (1000.0, 2000.0, "p_1_2GeV"), (2000.0, 5000.0, "p_2_5GeV"),
           (5000.0, math.inf, "p_gt_5GeV"))
@@ -134,7 +134,7 @@ P_BINS = ((0.0, 1000.0, "p_lt_1GeV"), (1000.0, 2000.0, "p_1_2GeV"), (2000.0, 500
 
 def pattern_counts(matched: np.ndarray, reconstructible: np.ndarray,
                    reconstructible_p: np.ndarray | None = None) -> dict:
-    """Counts behind efficiency, ghost and clone rate (DESIGN §10) that add up over batches
+    """Counts behind efficiency, ghost and clone rate (docs/physics.md#matching-and-metrics) that add up over batches
     (particle keys are unique per event, and a batch holds whole events). With the true
     momenta [MeV] of the reconstructible particles, also per momentum bin (`P_BINS`)."""
     real = matched[matched >= 0]

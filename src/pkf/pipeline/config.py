@@ -1,4 +1,4 @@
-"""The options of `pkf reconstruct` that decide its output: `ReconstructionConfig` (DESIGN §1.1).
+"""The options of `pkf reconstruct` that decide its output: `ReconstructionConfig` (docs/cli.md).
 
 Its own module so that the stage (`pkf.pipeline.reconstruct`) and the executors that run
 its partitions (`pkf.pipeline.executor`, which rebuilds it from a dict in each worker) both
@@ -17,7 +17,7 @@ PATTERNS = ("triplet", "truth")
 
 @dataclass(frozen=True)
 class ReconstructionConfig:
-    """Every option of `pkf reconstruct` that decides its output (DESIGN §1.1)."""
+    """Every option of `pkf reconstruct` that decides its output (docs/cli.md)."""
 
     fitters: tuple[str, ...] = ("parametrized",)
     pattern: str = "triplet"

@@ -1,4 +1,4 @@
-"""`pkf demo`: the whole chain on the built-in default, in one go (DESIGN §1).
+"""`pkf demo`: the whole chain on the built-in default, in one go (docs/cli.md).
 
 Simulates B_s⁰ → φφ events (on minimum bias) in the lhcb-like detector, reconstructs
 them with the parametrized and the reference Kalman fitter, and prints the headline

@@ -1,5 +1,5 @@
 """Executors of `pkf reconstruct`: run partitions in this process, in local worker processes,
-or on an existing Dask distributed scheduler (DESIGN §14).
+or on an existing Dask distributed scheduler (the import floors of tests/test_import_floors.py).
 
 The unit of work is :func:`run_partition`: it reads one partition's rows, reconstructs
 them, writes the partition's table files atomically into the staging directory and

@@ -83,7 +83,7 @@ def _check_agrees(path: Path, meta: dict, given: Geometry, option: str) -> None:
 def _geometry_info(path: Path, meta: dict) -> dict:
     """meta.json's ``geometry`` as a dict (a plain name becomes ``{"name": ...}``)."""
     info = meta.get("geometry", {})
-    if isinstance(info, str):  # a plain name (DESIGN §6: datasets from other producers)
+    if isinstance(info, str):  # a plain name (docs/formats.md: datasets from other producers)
         info = {"name": info}
     if not isinstance(info, dict):
         raise InputError(f"{path / 'meta.json'}: key 'geometry' must be a name or an object, not {info!r}")
@@ -97,7 +97,7 @@ def hit_layer_checks(geometry: Geometry) -> dict:
 
 
 def layer_area(geometry: Geometry) -> LayerArea:
-    """Bounds of the measured coordinates on each layer's active area [mm] (DESIGN §3).
+    """Bounds of the measured coordinates on each layer's active area [mm] (docs/geometry.md).
 
     Pixel layers measure (u, v) = (x, y): x within ±half_x, cut to the side a VELO-like
     module covers (left: x ≤ +overlap, right: x ≥ −overlap), y within ±half_y, outside

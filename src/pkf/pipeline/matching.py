@@ -1,4 +1,4 @@
-"""MC matching of tracks and pattern-recognition metrics (DESIGN §10).
+"""MC matching of tracks and pattern-recognition metrics (docs/physics.md#matching-and-metrics).
 
 A track is matched to the MC particle that contributed ≥ 70% of its hits, else it is
 a ghost; a second track matched to the same particle is a clone.
@@ -36,7 +36,7 @@ def match_tracks(track_of_hit: np.ndarray, particle_of_hit: np.ndarray, n_tracks
 
 
 def pattern_metrics(matched_particle: np.ndarray, reconstructible: np.ndarray) -> dict:
-    """Efficiency, ghost rate and clone rate (DESIGN §10).
+    """Efficiency, ghost rate and clone rate (docs/physics.md#matching-and-metrics).
 
     matched_particle: per track, the global id of its matched particle or −1 (ghost).
     reconstructible: global ids of the reconstructible particles.
@@ -55,7 +55,7 @@ def pattern_metrics(matched_particle: np.ndarray, reconstructible: np.ndarray) -
 
 
 def reconstructible_particles(geometry, particle_key: np.ndarray, layer: np.ndarray) -> np.ndarray:
-    """Keys of the particles that are reconstructible as long tracks (DESIGN §10).
+    """Keys of the particles that are reconstructible as long tracks (docs/physics.md#matching-and-metrics).
 
     Long: ≥ 3 VELO hits and, in each SciFi station, ≥ 1 hit on an x layer (stereo 0)
     and ≥ 1 on a stereo layer. A geometry without SciFi (e.g. the telescope): ≥ 3 hits.
@@ -84,7 +84,7 @@ def reconstructible_particles(geometry, particle_key: np.ndarray, layer: np.ndar
 
 
 def velo_reconstructible_particles(geometry, particle_key: np.ndarray, layer: np.ndarray) -> np.ndarray:
-    """Keys of the particles with ≥ 3 VELO hits (VELO-track efficiency, DESIGN §10)."""
+    """Keys of the particles with ≥ 3 VELO hits (VELO-track efficiency, docs/physics.md#matching-and-metrics)."""
     from pkf.geometry.detector import SUBDETECTORS
 
     signal = (particle_key > 0) & (geometry.layer_subdetector[layer] == SUBDETECTORS.index("velo"))

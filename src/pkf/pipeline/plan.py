@@ -4,7 +4,7 @@ A partition is a batch of at most ``events_per_batch`` consecutive events of one
 hits file (an event that goes on into the next file stays whole); it is the unit of
 work of the executors and of the output (one Parquet file per run table and partition).
 Partitions depend only on the data and ``events_per_batch``, never on the number of
-workers, so the run tables are the same whatever executes them (DESIGN §6, §13).
+workers, so the run tables are the same whatever executes them (docs/formats.md, docs/cli.md#exit-codes-and-messages).
 """
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ def check_consistency(tables: dict, partitions: list[Partition]) -> None:
 
 
 def plan_dataset(path: str | Path, events_per_batch: int, geometry: str | None = None) -> DatasetPlan:
-    """Validate the dataset at ``path`` in bounded memory (DESIGN §13) and cut it into partitions.
+    """Validate the dataset at ``path`` in bounded memory (docs/cli.md#exit-codes-and-messages) and cut it into partitions.
 
     geometry: ``--geometry`` NAME|FILE.toml, if given (:func:`~pkf.pipeline.inputs.resolve_geometry`).
 

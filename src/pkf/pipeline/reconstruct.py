@@ -1,4 +1,4 @@
-"""The `pkf reconstruct` stage: pattern recognition, fits, MC matching, run tables (DESIGN §6–§10).
+"""The `pkf reconstruct` stage: pattern recognition, fits, MC matching, run tables (docs/formats.md).
 
 The dataset is validated in bounded memory and cut into partitions of at most
 ``events_per_batch`` events of one input file (:mod:`pkf.pipeline.plan`); each
@@ -41,7 +41,7 @@ def geometry_file(option: str | None) -> str | None:
 
 
 def _check_config_against(plan: DatasetPlan, config: ReconstructionConfig) -> None:
-    """Problems of the configuration for this dataset, before any work (DESIGN §13)."""
+    """Problems of the configuration for this dataset, before any work (docs/cli.md#exit-codes-and-messages)."""
     if config.pattern == "truth" and not plan.has_mc:
         raise InputError(f"{plan.path}: --pattern truth needs mc_hits, and the dataset has none")
     from pkf.params.parameter_set import load_parameters
@@ -198,7 +198,7 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
     if plan.has_mc and pattern["pattern"] is not None:
         run["pattern"] = metrics_from_counts(pattern["pattern"])
         run["pattern"]["definition"] = ("long tracks (with SciFi hits) against long-reconstructible "
-                                        "particles (DESIGN §10)")
+                                        "particles (docs/physics.md#matching-and-metrics)")
         run["pattern"]["velo"] = metrics_from_counts(pattern["velo"])
     return run
 
@@ -208,7 +208,7 @@ def _timing_json(timing: dict, fit_stats: dict) -> dict:
 
     ``tracks_per_s`` and ``ns_per_node`` divide by the CPU time of the fitter's kernels summed
     over workers, not by wall time: with several workers sharing the cores, wall time counts the
-    waits for a core and the speed would depend on ``--workers`` (DESIGN §6). ``wall_s`` stays
+    waits for a core and the speed would depend on ``--workers`` (docs/formats.md). ``wall_s`` stays
     recorded beside it.
     """
     out = {stage: dict(t) for stage, t in timing.items() if not stage.startswith("fit.")}

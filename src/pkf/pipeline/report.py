@@ -1,4 +1,4 @@
-"""The `pkf report` stage: run directories → REPORT/ with summary.json, index.html and PNG plots (DESIGN §11).
+"""The `pkf report` stage: run directories → REPORT/ with summary.json, index.html and PNG plots (docs/formats.md#summaryjson).
 
 Inputs are validated and every number is computed before anything is written;
 the report directory is then built in a hidden staging directory and renamed into

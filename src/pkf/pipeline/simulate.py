@@ -1,4 +1,4 @@
-"""The `pkf simulate` stage: generate events, transport them, write a dataset (DESIGN §5, §6).
+"""The `pkf simulate` stage: generate events, transport them, write a dataset (docs/physics.md#simulation, docs/formats.md).
 
 A dataset directory holds ``hits.parquet``, ``particles.parquet``, ``mc_hits.parquet``,
 ``meta.json`` and a copy of the geometry (``geometry.toml``), written in a staging
@@ -39,7 +39,7 @@ EVENTS_PER_BATCH = 200
 
 @dataclass(frozen=True)
 class SimulationConfig:
-    """Every option of `pkf simulate` (DESIGN §1.1). Momenta in MeV."""
+    """Every option of `pkf simulate` (docs/cli.md). Momenta in MeV."""
 
     geometry: str = "lhcb-like"
     generator: str = "minbias"

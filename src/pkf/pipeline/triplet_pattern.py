@@ -1,4 +1,4 @@
-"""The triplet pattern recognition (`--pattern triplet`, DESIGN §7) as one step of a chunk.
+"""The triplet pattern recognition (`--pattern triplet`, docs/physics.md#pattern-recognition) as one step of a chunk.
 
 VELO tracks from hit triplets (`pkf.seeding.velo_search`), extended through the UT and
 the magnet into the SciFi with the parametrized extrapolations

@@ -1,4 +1,4 @@
-"""The `pkf tune` stage: fit the parametrized extrapolations on a simulated dataset (DESIGN §9.3).
+"""The `pkf tune` stage: fit the parametrized extrapolations on a simulated dataset (docs/parameters.md#how-the-coefficients-are-tuned).
 
 Before any work (the UT→SciFi tabulation alone takes ~30–90 s) the output file is
 checked (:func:`check_output_file`) and every step of the geometry must have the state
@@ -105,7 +105,7 @@ def failed_fits(reports: dict) -> list[str]:
 
 def pion_pairs(dataset_path, geometry_option: str | None = None, echo=None):
     """(geometry, dataset, field map, the state pairs of the dataset's pions, number of
-    events): the data set D of the tuning (DESIGN §9.3). ``geometry_option``: ``--geometry``
+    events): the data set D of the tuning (docs/parameters.md#how-the-coefficients-are-tuned). ``geometry_option``: ``--geometry``
     NAME|FILE.toml, if given; ``echo`` is given the warning lines (ignored extra columns).
 
     Raises:

@@ -1,4 +1,4 @@
-"""Reports of runs (DESIGN §11, paper Figs. 1–4): metrics, fits of distributions, plots, HTML.
+"""Reports of runs (docs/formats.md#summaryjson, paper Figs. 1–4): metrics, fits of distributions, plots, HTML.
 
 Modules:
 
@@ -9,7 +9,7 @@ Modules:
 - :mod:`pkf.report.html` — the self-contained index.html.
 
 The Gaussian core of a distribution (iterative ±3σ unbinned fits) is :mod:`pkf.params.gauss`:
-the tuning uses it too, so it lives on that lower floor (DESIGN §14).
+the tuning uses it too, so it lives on that lower floor (the import floors of tests/test_import_floors.py).
 
 The stage that writes a report directory is :func:`pkf.pipeline.report.run_report`.
 """

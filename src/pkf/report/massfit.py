@@ -1,6 +1,6 @@
 """B_s⁰ → φφ invariant mass: four-kaon masses from fitted states, and the Gaussian + linear peak fit (paper Fig. 4).
 
-Fit model (DESIGN §10, as in the paper): a Gaussian signal and a first-order
+Fit model (docs/physics.md#matching-and-metrics, as in the paper): a Gaussian signal and a first-order
 polynomial background in a mass window [lo, hi] (MeV), both normalised to the
 window, fitted by an *extended unbinned* maximum likelihood with iminuit
 (:class:`iminuit.cost.ExtendedUnbinnedNLL`): no binning choice enters the result,

@@ -1,4 +1,4 @@
-"""Report metrics (DESIGN §10–§11, paper Figs. 1–4): resolutions, pulls, χ²/ndf, B_s mass, efficiency, timing.
+"""Report metrics (docs/physics.md#matching-and-metrics, paper Figs. 1–4): resolutions, pulls, χ²/ndf, B_s mass, efficiency, timing.
 
 :func:`compute_report` takes validated runs (:func:`pkf.report.runs.load_runs`) and
 returns a :class:`ReportData`: the machine-readable ``summary`` (written as
@@ -34,14 +34,14 @@ Conventions
   of those had p_fit < 0.8·p_true, measured on 2000 events). Fitters can lose different
   decays, so ``ratio_to_reference`` compares σ(m) on the *common* truth-matched candidates —
   the same decays with the same kaons — with a jackknife error on the ratio.
-- Efficiency: reconstructible long particles of the dataset (DESIGN §10, via
+- Efficiency: reconstructible long particles of the dataset (docs/physics.md#matching-and-metrics, via
   :func:`pkf.pipeline.matching.reconstructible_particles`); a particle is found by
   a fitter if a track of that fitter with fit status ``ok`` is matched to it; at
   run level (``runs[i].pattern.recomputed``) if any candidate is matched to it
   (the definition of run.json ``pattern``). p and η are the production momentum's.
   Errors are Clopper–Pearson 68.3% intervals.
 - Speed-up = tracks_per_s(entry) / tracks_per_s(reference entry), from run.json
-  ``timing.fit``; DESIGN §12 asks for ratios from one process run on the same
+  ``timing.fit``; benchmarks/ (docs/physics.md) asks for ratios from one process run on the same
   tracks, so ``same_run_as_reference`` says whether that holds.
 
 Every float is written as a number, or ``null`` where undefined (NaN/inf).
@@ -247,7 +247,7 @@ def lookup_sorted(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray
     return pos, sorted_keys[pos] == keys
 
 
-#: Track types (DESIGN §6 chi2.track_type): VELO + UT + SciFi, VELO + UT, VELO only.
+#: Track types (docs/formats.md chi2.track_type): VELO + UT + SciFi, VELO + UT, VELO only.
 TRACK_TYPES = ("long", "upstream", "velo")
 
 
@@ -487,7 +487,7 @@ def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
 
 
 def _rates(chi2: pa.Table) -> tuple[float | None, float | None]:
-    """Ghost rate and clone rate of the tracks of a chi2 table (DESIGN §10)."""
+    """Ghost rate and clone rate of the tracks of a chi2 table (docs/physics.md#matching-and-metrics)."""
     n = chi2.num_rows
     if n == 0:
         return None, None
@@ -526,7 +526,7 @@ def _efficiency_section(truth: DatasetTruth, chi2_ok: pa.Table, has_mc: bool) ->
 
 def long_decays(truth: DatasetTruth) -> np.ndarray:
     """Per signal decay (row of ``truth.kaon_keys``): are its four kaons long reconstructible
-    particles (DESIGN §10: ≥ 3 VELO hits, an x and a stereo hit in every SciFi station)?"""
+    particles (docs/physics.md#matching-and-metrics: ≥ 3 VELO hits, an x and a stereo hit in every SciFi station)?"""
     return np.isin(truth.kaon_keys, truth.reco_key).all(axis=1)
 
 

@@ -1,4 +1,4 @@
-"""Report plots (paper Figs. 1–4, DESIGN §11): PNG files drawn with matplotlib (Agg) in the mplhep LHCb style.
+"""Report plots (paper Figs. 1–4, docs/formats.md#summaryjson): PNG files drawn with matplotlib (Agg) in the mplhep LHCb style.
 
 :func:`make_plots` writes every plot of a :class:`~pkf.report.metrics.ReportData`
 into a directory and returns, per report section, the list of :class:`Plot` it

@@ -1,7 +1,7 @@
 """Reading run directories for a report: validated run tables, run.json and the fitters they hold.
 
-A report (DESIGN §11) accepts one or more run directories (output of
-``pkf reconstruct``, DESIGN §6), each with a label (``RUN:LABEL``; default: the run
+A report (docs/formats.md#summaryjson) accepts one or more run directories (output of
+``pkf reconstruct``, docs/formats.md), each with a label (``RUN:LABEL``; default: the run
 folder's name). Each run table is one Parquet file (``chi2.parquet``) or, as `pkf reconstruct`
 writes it, a directory of partition files (``chi2/part-FFFF-BBBBB.parquet``, read in order).
 The report's entries are (label, fitter) pairs, ``LABEL/FITTER``: the same fitter may appear
@@ -11,8 +11,8 @@ is written.
 
 A run of ``pkf reconstruct`` lists its partition files with their SHA-256 in
 ``run.json`` (``partitions[].files``); :func:`verify_run_files` refuses a run with a
-listed file missing or changed, or with a table file that no partition lists (DESIGN
-§13), so a damaged run never gives a report of part of its tracks. Cost: SHA-256 of
+listed file missing or changed, or with a table file that no partition lists
+(docs/cli.md#exit-codes-and-messages), so a damaged run never gives a report of part of its tracks. Cost: SHA-256 of
 every file, on a thread per core (hashlib releases the GIL); the files are then in the
 page cache for the reading that follows.
 """
@@ -146,7 +146,7 @@ def _table_files(path: Path, tables) -> list[Path]:
 
 def verify_run_files(path: str | os.PathLike, info: dict) -> None:
     """Refuse a damaged run: a file run.json lists is missing or has another SHA-256, or a
-    run table holds a file that no partition lists (DESIGN §13).
+    run table holds a file that no partition lists (docs/cli.md#exit-codes-and-messages).
 
     A run.json without ``partitions`` (a run not written by `pkf reconstruct`) is not
     checked. Cost: reading and hashing every listed file once (SHA-256, ~0.3–1 GB/s per

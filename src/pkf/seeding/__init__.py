@@ -1,4 +1,4 @@
-"""Pattern recognition: triplet fit, triplet finding, merging, forward extension (DESIGN §7)."""
+"""Pattern recognition: triplet fit, triplet finding, merging, forward extension (docs/physics.md#pattern-recognition)."""
 
 from pkf.seeding.triplet_fit import (
     COMBINE_CURVATURE,

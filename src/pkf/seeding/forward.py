@@ -1,8 +1,8 @@
-"""Forward extension of VELO tracks through the UT and the magnet into the SciFi (DESIGN §7.4).
+"""Forward extension of VELO tracks through the UT and the magnet into the SciFi (docs/physics.md#pattern-recognition).
 
 The triplet paper's "extrapolation technique": a VELO track (event, straight-line state
 (x, y, tx, ty) at a VELO layer, q/p unknown) is extended with the *parametrized*
-extrapolations of DESIGN §9.2 (no field map): VELO→UT (paper eqs. 15–20), UT and SciFi
+extrapolations of docs/physics.md#the-parametrized-fitter (no field map): VELO→UT (paper eqs. 15–20), UT and SciFi
 layer steps (eq. 14), the UT→SciFi table (eqs. 21–23) and the parametrized noise (eq. 11),
 through `pkf.seeding.forward_steps`. Every search step is a linearised Kalman filter (KF)
 around a *reference trajectory* (the transport of the VELO state at a q/p hypothesis with
@@ -57,7 +57,7 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    uncertainty), stereo hits resolved by the filter (a u/v hit constrains y through the
    stereo angle; wrong choices die on the next Δχ²), the ``max_branch`` best hits per
    layer, a skip only where no hit is compatible, ≥ ``scifi_min_hits``, and in every
-   station ≥ 1 x and ≥ 1 stereo hit (the long-reconstructible definition, DESIGN §10).
+   station ≥ 1 x and ≥ 1 stereo hit (the long-reconstructible definition, docs/physics.md#matching-and-metrics).
    Candidates are ranked by χ² − ``miss_penalty``·hits; following stops at a good, nearly
    complete one.
 4. **UT confirmation and final fit**, candidates best first: the UT hits are searched
@@ -340,7 +340,7 @@ class ForwardTracks:
 
     hit_rows[offsets[t]:offsets[t+1]]: rows of the input hit arrays added to track t
     (UT then SciFi, sorted by z); n_ut, n_scifi: how many of each. qop [1/MeV] and
-    qop_var: the q/p estimate (at production, DESIGN §9.2) and its variance (NaN if
+    qop_var: the q/p estimate (at production, docs/physics.md#the-parametrized-fitter) and its variance (NaN if
     none); chi2/ndf of the extension fit (ndf = hits − 1, the VELO state as prior);
     status: STATUS_* (STATUS_NAMES); below_table_p_min: |q/p| > 1/p_min of the
     UT→SciFi table (the parametrized fit returns status 4 there); from_scan: the
@@ -1829,7 +1829,7 @@ def _layout(geometry: Geometry):
 
 def _acceptance(geometry: Geometry, f_layer: np.ndarray) -> np.ndarray:
     """Active area of the forward layers: (half_x, half_y, hole radius, hole half_x, hole
-    half_y) per layer [mm] (DESIGN §3)."""
+    half_y) per layer [mm] (docs/geometry.md)."""
     planes = geometry.planes
     acc = np.zeros((f_layer.size, 5))
     for j, lay in enumerate(f_layer):
@@ -1848,7 +1848,7 @@ def _check_extrapolator(ext, geometry: Geometry) -> None:
           and ext.between_type[u] == STEP_UT_TO_SCIFI and ext.within_type[t] == STEP_SCIFI)
     if not ok:
         raise InputError(f"geometry {geometry.name!r}: the forward extension needs the step types "
-                         "velo_to_ut, ut, ut_to_scifi and scifi (DESIGN §9.2)")
+                         "velo_to_ut, ut, ut_to_scifi and scifi (docs/physics.md#the-parametrized-fitter)")
     meta, coef = ext.uts_meta, ext.uts_coef
     if (meta.size < META_SIZE or meta[META_NX] < 3 or meta[META_NY] < 3 or meta[META_P_MIN] <= 0
             or coef.ndim != 4 or coef.shape[1] != int(meta[META_NX]) or coef.shape[2] != int(meta[META_NY])):
@@ -1975,7 +1975,7 @@ def _prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_
 def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
                        geometry: Geometry, ext, options: ForwardOptions | None = None,
                        **overrides) -> ForwardTracks:
-    """Extend VELO tracks through the UT and the SciFi (DESIGN §7.4).
+    """Extend VELO tracks through the UT and the SciFi (docs/physics.md#pattern-recognition).
 
     track_event (n,): event id of each VELO track; velo_state (n, 4): (x, y, tx, ty) [mm]
     at z_state (n,) [mm], a z inside the VELO (the state is moved along its straight line

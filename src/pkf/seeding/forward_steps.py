@@ -1,6 +1,6 @@
 """Parametrized transport for the forward extension: reference trajectories and q/p scans.
 
-DESIGN §7.4, §9.2. The forward extension (`pkf.seeding.forward`) needs, for one VELO
+docs/physics.md#pattern-recognition, docs/physics.md#the-parametrized-fitter. The forward extension (`pkf.seeding.forward`) needs, for one VELO
 track, many transports of the same start state with different q/p hypotheses. This
 module provides them with the paper's parametrized steps of `pkf.params.transport` (the
 shipped or tuned parameter set), without a field map:
@@ -20,7 +20,7 @@ search continues the polynomials quadratically (``quadratic=True``, see
 found are usable, the q/p estimate is flagged (the Kalman fit decides what to do with a
 status-4 parametrization).
 
-Units: mm, 1/MeV (q/p at production, DESIGN §9.2).
+Units: mm, 1/MeV (q/p at production, docs/physics.md#the-parametrized-fitter).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Hit-triplet fit with multiple scattering and hit uncertainties (DESIGN §7.2).
+"""Hit-triplet fit with multiple scattering and hit uncertainties (docs/physics.md#pattern-recognition).
 
 Implements the triplet fit of Schöning (“the triplet paper”, seeds/001; geometry and
 eq. 1 from Berger, Kozlinskiy, Kiehn, Schöning, NIM A 844 (2017) 135) for many
@@ -14,7 +14,7 @@ Three fits share one geometry table (`triplet_geometry`, one row per triplet):
   (`triplet_fit_hit_errors`): the hit errors are propagated to the two kink angles and
   added to the scattering variances; R3D is the root of the App. C cubic (Cardano).
 * **Curvature form** — the same linearised kinks written as functions of the signed
-  3-D curvature κ = ±1/R3D (as traccc does, DESIGN §15):
+  3-D curvature κ = ±1/R3D (as traccc does, docs/physics.md):
   kink(κ) = ψ + ρ·κ with finite ψ, ρ for every triplet, including exactly collinear
   hits and B = 0 (`triplet_fit_curvature`). Below a field threshold σ_MS is taken at
   the seeding momentum p_min; above it σ_MS = b·|κ| and κ solves the App. C-type cubic.
@@ -41,7 +41,7 @@ Conventions (all per triplet; hits are ordered along the motion, 0 → 1 → 2):
 * The transverse kink Φ_MS = φ_out − φ_in (counter-clockwise positive) and the
   longitudinal kink Θ_MS = θ_out − θ_in (θ = polar angle from +z′) at the middle hit.
   Scattering is isotropic: var(Φ_MS) = σ_MS²/sin²ϑ, var(Θ_MS) = σ_MS².
-* Highland (DESIGN §4) for unit charge with a mass hypothesis (pion by default), with
+* Highland (docs/physics.md#material-effects) for unit charge with a mass hypothesis (pion by default), with
   path length t = (x/X0)·N, N = √(1 + tx² + ty²) from the circle-solution direction at
   the middle hit (detector planes are normal to z; `x_over_x0` is the plane thickness).
 * ndf = 1: two kink angles, one parameter (R3D or κ) — “assuming energy conservation
@@ -140,7 +140,7 @@ STATUS_INVALID = STATUS_DEGENERATE | STATUS_NO_VARIANCE
 
 # ------------------------------------------------------------------------------------
 # Geometry table columns (triplet_geometry). Φ_iC, R3D_iC, θ_iC, α_i, Φ̃, η, Θ̃, β, ϑ as
-# in DESIGN §7.2 (unsigned circle solution); ψ/ρ the curvature form (signed).
+# in docs/physics.md#pattern-recognition (unsigned circle solution); ψ/ρ the curvature form (signed).
 # ------------------------------------------------------------------------------------
 GEOMETRY_COLUMNS = (
     "d01", "d12", "d02",          # transverse distances [mm]
@@ -226,7 +226,7 @@ def _wrap(a):
 
 @nb.njit(cache=True, **NO_REFCOUNT)
 def highland_sigma(p, mass, t):
-    """σ_MS [rad] for unit charge: Highland (paper eq. 2, DESIGN §4) at p [MeV], path t [X0].
+    """σ_MS [rad] for unit charge: Highland (paper eq. 2, docs/physics.md#material-effects) at p [MeV], path t [X0].
 
     p is capped at 1e8 MeV so that σ_MS stays positive for straight tracks in a field.
     """
@@ -336,7 +336,7 @@ def solve_cubic(a3, a2, a1, a0, scale):
 
 
 # ------------------------------------------------------------------------------------
-# Geometry (DESIGN §7.2; Berger et al. §3; triplet paper Figure 2, App. A)
+# Geometry (docs/physics.md#pattern-recognition; Berger et al. §3; triplet paper Figure 2, App. A)
 # ------------------------------------------------------------------------------------
 
 
@@ -454,7 +454,7 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     turn = 1.0 if cross >= 0.0 else -1.0
     acr = abs(cross)
     # Bending angles Φ_1C, Φ_2C = twice the inscribed angle opposite each chord (exactly
-    # 2·asin(d_i/(2R_C)) of DESIGN §7.2 for Φ < π, and defined beyond a half turn).
+    # 2·asin(d_i/(2R_C)) of docs/physics.md#pattern-recognition for Φ < π, and defined beyond a half turn).
     phi1 = 2.0 * math.atan2(acr, c02x * c12x + c02y * c12y)
     phi2 = 2.0 * math.atan2(acr, c01x * c02x + c01y * c02y)
     if phi1 + phi2 > math.pi:
@@ -488,7 +488,7 @@ def triplet_geometry_row(h, b, hv, b_threshold, g):
     q2 = a2 * a2 * _xcotx_minus_one_over_2x(0.5 * phi2) / den2
     k1 = phi1 / s1  # 1/R3D_iC
     k2 = phi2 / s2
-    # radius form (unsigned), DESIGN §7.2
+    # radius form (unsigned), docs/physics.md#pattern-recognition
     phi_tilde = -0.5 * (phi1 * alpha1 + phi2 * alpha2)
     eta = 0.5 * (phi1 * alpha1 * k1 + phi2 * alpha2 * k2)
     theta_tilde = theta2 - theta1 - oma2 * cot2 + oma1 * cot1
@@ -632,7 +632,7 @@ def fit_ms_row(g, x_over_x0, mass, bias_correction):
     σ(R3D)² = σ_MS²/(η² sin²ϑ + β²), χ²_min = (βΦ̃ − ηΘ̃)²/(σ_MS²(η² + β²/sin²ϑ)) and
     σ_MS from Highland at p = κ_c·|B|·R3D (R3D does not depend on σ_MS).
     bias_correction: multiply R3D by ¾ + ¼√(1 − 8δ² sin²ϑ),
-    δ = (βΦ̃ − ηΘ̃)/(ηΦ̃ sin²ϑ + βΘ̃) (Belle II, DESIGN §15).
+    δ = (βΦ̃ − ηΘ̃)/(ηΦ̃ sin²ϑ + βΘ̃) (Belle II, docs/physics.md).
     """
     if int(g[G_STATUS]) & STATUS_DEGENERATE:
         return 0.0, 0.0, np.inf, 0.0, False
@@ -781,7 +781,7 @@ def _curvature_cubic_coefficients(rp, rt, pp, pt, s2, vpp, vpt, vtt, b):
 
 @nb.njit(cache=True, **NO_REFCOUNT)
 def fit_curvature_row(g, x_over_x0, mass, b_threshold, p_min, straight):
-    """Curvature-form fit (DESIGN §7.2 last item, §15 traccc) on one geometry row.
+    """Curvature-form fit (docs/physics.md#pattern-recognition last item; traccc's form) on one geometry row.
 
     Kinks linear in the signed curvature κ: r(κ) = ψ + ρκ (columns psi_*/rho_*),
     C = diag(σ_MS²/sin²ϑ, σ_MS²) + V_hit, K = C⁻¹:
@@ -1243,7 +1243,7 @@ def triplet_fit_ms(geometry, x_over_x0, mass: float = MASS_PION,
     R3D = −(ηΦ̃ sin²ϑ + βΘ̃)/(η² sin²ϑ + β²), σ(R3D) = σ_MS/√(η² sin²ϑ + β²),
     χ²_min = (βΦ̃ − ηΘ̃)²/(σ_MS²(η² + β²/sin²ϑ)) (1 dof); σ_MS = Highland (eq. 2) at
     p = κ_c|B|R3D for unit charge and `mass` [MeV] through x/X0 (plane thickness) at the
-    middle hit. bias_correction applies the Belle II factor (DESIGN §15).
+    middle hit. bias_correction applies the Belle II factor (docs/physics.md).
     ok is False for collinear hits or a non-positive R3D (use the curvature form).
     """
     g = np.ascontiguousarray(geometry, dtype=np.float64)
@@ -1287,7 +1287,7 @@ def fit_triplets(hits, bfield, x_over_x0, hit_var=None, *, mass: float = MASS_PI
                  b_threshold: float = DEFAULT_B_THRESHOLD, p_min: float = DEFAULT_P_MIN,
                  form: int = FORM_CURVATURE,
                  straight_below_threshold: bool = False) -> TripletFit:
-    """Fit many hit triplets at once (DESIGN §7.2); one compiled pass, no Python loop.
+    """Fit many hit triplets at once (docs/physics.md#pattern-recognition); one compiled pass, no Python loop.
 
     hits: (n, 3, 3) [mm], hits 0 → 1 → 2 along the motion; bfield: (3,) or (n, 3) [T] at
     the middle hit; x_over_x0: scalar or (n,) thickness of the middle plane (normal z)

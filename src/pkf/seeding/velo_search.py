@@ -1,4 +1,4 @@
-"""VELO pattern recognition: triplet search, merging and arbitration (DESIGN §7.1–7.3).
+"""VELO pattern recognition: triplet search, merging and arbitration (docs/physics.md#pattern-recognition).
 
 ``find_velo_tracks`` takes the hits of many events (per-hit arrays, sorted by event) and
 returns VELO track candidates in CSR form with a straight-line first state. All work is
@@ -11,7 +11,7 @@ Algorithm (per event)
    ``N_PHI_BINS`` φ bins; a φ window is an index range read from the bin table (O(1)
    plus the hits in the window), never a scan of a module.
 
-2. **Triplets on one VELO half** (DESIGN §7.1). The modules alternate between the left
+2. **Triplets on one VELO half** (docs/physics.md#pattern-recognition). The modules alternate between the left
    (x ≤ +5 mm) and the right (x ≥ −5 mm) half. A triplet uses three modules of the same
    half, i < j < k, with at most ``max_missing`` (1) module of that half between
    consecutive hits that the straight line through them certainly crosses (inside its
@@ -88,7 +88,7 @@ Algorithm (per event)
 8. **First state.** (x, y, tx, ty) at the first (most upstream) hit from a weighted
    least-squares straight line through all the track's hits (x–z and y–z separately,
    weights 1/σ², scattering ignored): the seed of the Kalman fit and of the forward
-   extension (DESIGN §7.4).
+   extension (docs/physics.md#pattern-recognition).
 
 A track's χ²/ndf is that of its chain plus the triplets that added hits in step 7.
 """
@@ -157,7 +157,7 @@ class VeloSearchOptions:
     chain_pvalue [0]         p-value cut on a whole chain's combined χ² (0: no cut)
     p_min [1000 MeV]         seeding momentum: σ_MS (Highland) of the triplet fit
     mass [m_π]               mass hypothesis for Highland [MeV]
-    b_threshold [0.05 T]     below it the curvature is not fitted (DESIGN §7.2)
+    b_threshold [0.05 T]     below it the curvature is not fitted (docs/physics.md#pattern-recognition)
     straight [True]          κ ≡ 0 below b_threshold (ndf 2 per triplet); else κ fitted
     max_missing [1]          crossed modules without a hit between consecutive hits
     z_luminous [200 mm]      |z0| of the luminous region (σ_z = 45 mm) for doublets
@@ -170,7 +170,7 @@ class VeloSearchOptions:
                              used by accepted tracks (it then keeps its free hits)
     keep_best [True]         one third hit per doublet and module (best 4-hit χ²)
     all_skips [False]        also form module-skipping triplets when not needed
-    same_side [True]         triplets on modules of one half only (DESIGN §7.1);
+    same_side [True]         triplets on modules of one half only (docs/physics.md#pattern-recognition);
                              False: also across halves in the overlap strip
     fill_gaps [True]         add free hits on modules crossed between a track's hits
     second_pass [True]       with same_side: a second search across both halves on the
@@ -1021,7 +1021,7 @@ def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, b
                                 if (used[c] or abs(hit[c, _H_X] - xp) > wx
                                         or abs(hit[c, _H_Y] - yp) > wy):
                                     continue
-                                # triplet fit (DESIGN §7.2) at the middle hit b
+                                # triplet fit (docs/physics.md#pattern-recognition) at the middle hit b
                                 hbuf[0, 0] = xa
                                 hbuf[0, 1] = ya
                                 hbuf[0, 2] = za
@@ -1327,7 +1327,7 @@ def _chi2_table(pvalue: float, n: int) -> np.ndarray:
 
 def find_velo_tracks(event_id, layer, x, y, z, sigma, geometry: Geometry,
                      **options) -> VeloTracks:
-    """Find VELO tracks in many events at once (DESIGN §7.1–7.3); see the module docstring.
+    """Find VELO tracks in many events at once (docs/physics.md#pattern-recognition); see the module docstring.
 
     event_id, layer, x, y, z: per-hit arrays (rows of a hits table, sorted by event_id;
     any subdetector: only pixel hits on VELO layers are used; x = u, y = v [mm]);
@@ -1393,7 +1393,7 @@ def find_velo_tracks(event_id, layer, x, y, z, sigma, geometry: Geometry,
 
 
 def find_velo_tracks_in_hits(hits, geometry: Geometry, **options) -> VeloTracks:
-    """`find_velo_tracks` on a ``hits`` table (pyarrow Table with the DESIGN §6 columns
+    """`find_velo_tracks` on a ``hits`` table (pyarrow Table with the docs/formats.md columns
     event_id, layer, z, u, v, sigma_u, sigma_v; sorted by event). Track hits are row
     indices of the table."""
     def col(name):

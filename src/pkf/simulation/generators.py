@@ -1,7 +1,7 @@
-"""Event generators (DESIGN §5): minimum bias, particle gun and B_s⁰ → φφ.
+"""Event generators (docs/physics.md#simulation): minimum bias, particle gun and B_s⁰ → φφ.
 
 Each generator turns a numpy Generator into the particles of one event, as columns
-of the `particles` table (DESIGN §6) without the event number. Units: mm, MeV.
+of the `particles` table (docs/formats.md) without the event number. Units: mm, MeV.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ class LuminousRegion:
 
 @dataclass(frozen=True)
 class MinBiasSettings:
-    """Built-in minimum-bias model (DESIGN §5).
+    """Built-in minimum-bias model (docs/physics.md#simulation).
 
     pileup: mean number ν of pp interactions per event. An event is a crossing with at
         least one visible interaction, so the number is drawn from a Poisson(ν)

@@ -1,4 +1,4 @@
-"""Pythia 8 event generators (DESIGN §5): ``pythia`` and ``pythia-bs2phiphi``.
+"""Pythia 8 event generators (docs/physics.md#simulation): ``pythia`` and ``pythia-bs2phiphi``.
 
 Needs the optional ``pythia`` extra (the ``pythia8mc`` wheel). Units: mm, MeV.
 
@@ -165,7 +165,7 @@ def _decay_parents(record: dict[str, np.ndarray]) -> np.ndarray:
 def _interaction_particles(
     pythia, vertex: np.ndarray, interaction: int, signal: bool
 ) -> dict[str, np.ndarray]:
-    """The particles of Pythia's current event as `particles` columns (DESIGN §6), parent_id
+    """The particles of Pythia's current event as `particles` columns (docs/formats.md), parent_id
     1-based within this block, production vertices shifted by `vertex` [mm]."""
     record = _record(pythia)
     parent = _decay_parents(record)
@@ -215,7 +215,7 @@ def signal_in_acceptance(event: dict[str, np.ndarray]) -> bool:
 
 @dataclass(frozen=True)
 class PythiaSettings:
-    """Pileup ν (mean pp interactions per crossing, DESIGN §5) and the luminous region."""
+    """Pileup ν (mean pp interactions per crossing, docs/physics.md#simulation) and the luminous region."""
 
     pileup: float = 1.0
     luminous_region: LuminousRegion = field(default_factory=LuminousRegion)

@@ -1,4 +1,4 @@
-"""Transport of particles through the detector and its response (DESIGN §5).
+"""Transport of particles through the detector and its response (docs/physics.md#simulation).
 
 One compiled kernel per batch of events: Runge–Kutta through the analytic field from the
 production vertex through every plane; at each crossed plane inside its active area a
@@ -124,7 +124,7 @@ def _simulate_batch(
                     out_float[n_hits, 2] = x
                     out_float[n_hits, 3] = y
                     out_float[n_hits, 4] = zp
-                # Material effects of a thin plane (DESIGN §4).
+                # Material effects of a thin plane (docs/physics.md#material-effects).
                 tx_in, ty_in, qop_in = tx, ty, qop
                 t = plane_x0[k] * math.sqrt(1.0 + tx * tx + ty * ty)
                 if t > 0.0:
