@@ -1,7 +1,7 @@
 """The track loop every fitter shares: count ndf → fit → find the outlier → deactivate → refit.
 
 docs/physics.md#the-kalman-core: after a fit, the active node whose standardised χ² exceeds its cut by the
-largest factor (`pkf.fit.kalman.find_outlier`) is deactivated and the track refitted,
+largest factor (`find_outlier`) is deactivated and the track refitted,
 at most ``max_outliers`` times; a track with ndf ≤ 0 has status "too few hits".
 
 A fitter is a NamedTuple (its context, options and scratch arrays, sized for the
