@@ -138,7 +138,7 @@ class ScatteringAngles(NamedTuple):
     tmp: np.ndarray
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _angles_transport(actor, ext, z_from, z_to, crossed):
     """RK4 segment; jac = S·jac and G_p = S·G_p for the slots crossed so far."""
     if z_to == z_from:
@@ -152,7 +152,7 @@ def _angles_transport(actor, ext, z_from, z_to, crossed):
     return STATUS_OK
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _angles_interact(actor, ext, k, direction):
     """Plane k: its slot's Highland width and G = K (module docstring), the Bethe mean loss
     on q/p (row 4 of jac scaled by ∂qop′/∂qop), then the kick K·θ on the slopes."""
