@@ -79,7 +79,7 @@ from pkf.physics.linalg import (
 from pkf.fit.propagate import (
     mean_energy_loss,
     plane_path_x0,
-    propagate,
+    propagator,
     register_actor,
     rk4_segment,
     scattering_width,
@@ -192,6 +192,7 @@ def _angles_interact(actor, ext, k, direction):
 
 
 register_actor(ScatteringAngles, _angles_transport, _angles_interact)
+_propagate_angles = propagator(_angles_transport, _angles_interact)
 
 
 @nb.njit(cache=True)
@@ -212,7 +213,7 @@ def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, st
         step_plane[k] = p_first
         cursor[0] = k
         cursor[1] = p_first
-        status = propagate(ext, actor, z[k - 1], z[k])
+        status = _propagate_angles(ext, actor, z[k - 1], z[k])
         if status != STATUS_OK:
             return status
         step_plane[k + 1] = search_sorted(ext.plane_z, z[k], True) - plane_lo

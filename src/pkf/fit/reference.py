@@ -18,7 +18,7 @@ import numpy as np
 
 from pkf.fit.extrapolator import STATUS_EXTRAPOLATION_FAILED, STATUS_OK, register_extrapolator
 from pkf.physics.linalg import copy5, set_identity
-from pkf.fit.propagate import KalmanMaterial, propagate
+from pkf.fit.propagate import KalmanMaterial, propagate_kalman
 from pkf.geometry.detector import Geometry
 from pkf.physics.constants import MASS_PION
 
@@ -77,7 +77,7 @@ def reference_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out, w
     if z_to == z_from:
         return STATUS_OK
     actor = KalmanMaterial(state_out, jac_out, noise_out, work)
-    status = propagate(ext, actor, z_from, z_to)
+    status = propagate_kalman(ext, actor, z_from, z_to)
     if status != STATUS_OK:
         return status
     if not math.isfinite(state_out[4]):
