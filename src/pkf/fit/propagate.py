@@ -72,12 +72,6 @@ def register_actor(actor_class: type, transport_function, interact_function) -> 
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, inline="always")
-def _before_end(plane_z, z_to, forward):
-    """Whether a plane at plane_z lies in the half-open range still to be crossed."""
-    return plane_z <= z_to if forward else plane_z > z_to
-
-
 def propagator(transport_function, interact_function):
     """The navigator (`propagate`) with the actor's transport and interaction called
     directly: inlined into the fitter's kernel, with no call per plane through the
@@ -90,23 +84,32 @@ def propagator(transport_function, interact_function):
         (see the module docstring). Returns the first status other than STATUS_OK, or the
         last segment's status."""
         plane_z = ext.plane_z
-        forward = z_to > z_from
-        direction = 1.0 if forward else -1.0
-        k = search_sorted(plane_z, z_from, True)  # first plane with z > z_from
-        if not forward:
-            k -= 1  # last plane with z <= z_from
         z = z_from
         crossed = 0
-        while 0 <= k < plane_z.size and _before_end(plane_z[k], z_to, forward):
-            status = transport_function(actor, ext, z, plane_z[k], crossed)
-            if status != STATUS_OK:
-                return status
-            z = plane_z[k]
-            status = interact_function(actor, ext, k, direction)
-            if status != STATUS_OK:
-                return status
-            crossed += 1
-            k += 1 if forward else -1
+        if z_to > z_from:  # one loop per direction (no direction flag in the loop)
+            k = search_sorted(plane_z, z_from, True)  # first plane with z > z_from
+            while k < plane_z.size and plane_z[k] <= z_to:
+                status = transport_function(actor, ext, z, plane_z[k], crossed)
+                if status != STATUS_OK:
+                    return status
+                z = plane_z[k]
+                status = interact_function(actor, ext, k, 1.0)
+                if status != STATUS_OK:
+                    return status
+                crossed += 1
+                k += 1
+        else:
+            k = search_sorted(plane_z, z_from, True) - 1  # last plane with z <= z_from
+            while k >= 0 and plane_z[k] > z_to:
+                status = transport_function(actor, ext, z, plane_z[k], crossed)
+                if status != STATUS_OK:
+                    return status
+                z = plane_z[k]
+                status = interact_function(actor, ext, k, -1.0)
+                if status != STATUS_OK:
+                    return status
+                crossed += 1
+                k -= 1
         return transport_function(actor, ext, z, z_to, crossed)
 
     return navigate
