@@ -133,7 +133,7 @@ import numpy as np
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import scalar_update
 from pkf.physics.linalg import copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
-from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagate, register_actor
+from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, fit_locations, run_fitter
@@ -657,6 +657,7 @@ def _mixture_interact(actor, ext, k, direction):
 
 
 register_actor(MixtureMaterial, _mixture_transport, _mixture_interact)
+_propagate_mixture = propagator(_mixture_transport, _mixture_interact)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -666,7 +667,7 @@ def _propagate(ctx, z_from, z_to, buf, n, count, nearest, nearest_d, alive, scra
     sets, count a 1-element scratch. Returns the new component count (0: failed)."""
     count[0] = n
     actor = MixtureMaterial(ctx, buf, count, nearest, nearest_d, alive, scratch, bh)
-    if propagate(ctx.ref, actor, z_from, z_to) != STATUS_OK:
+    if _propagate_mixture(ctx.ref, actor, z_from, z_to) != STATUS_OK:
         return 0
     return count[0]
 
