@@ -947,7 +947,6 @@ def gsf_fit_tracks(ctx, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, 
     for t in range(n_tracks):
         lo = offsets[t]
         hi = offsets[t + 1]
-        n = hi - lo
         active = out_active[lo:hi]
         active[:] = True
         n_out = 0
