@@ -136,7 +136,6 @@ def add_issue_13_cases(add, hits: pa.Table, mc_hits: pa.Table, particles: pa.Tab
     v_null = pa.compute.is_null(hits.column("v")).to_numpy(zero_copy_only=False)
     velo_row = int(np.flatnonzero((layer < 52) & ~v_null)[7])
     strip_row = int(np.flatnonzero(v_null)[3])
-    mc = {"mc_hits.parquet": mc_hits, "particles.parquet": particles}
     # measurement errors out of range (case 4): 1e-300 mm overflowed 1/σ² in the pattern
     add("sigma_too_small", {"hits.parquet": _set(hits, "sigma_u", 19, 1e-300)}, "hits.parquet", "sigma_u", 19)
     add("sigma_larger_than_layer", {"hits.parquet": _set(hits, "sigma_v", velo_row, 500.0)},

@@ -64,7 +64,7 @@ class TruthSample:
         _, state, cov = result.locations["first_hit"]
         truth = self.truth[self.batch.hit_row[first]]
         sigma = np.sqrt(np.einsum("nii->ni", cov))
-        return ((state - truth) / sigma)[ok], ((state - truth))[ok], truth[ok]
+        return ((state - truth) / sigma)[ok], (state - truth)[ok], truth[ok]
 
     def long_tracks(self):
         """Tracks with ≥ 3 VELO hits and hits in all three SciFi stations."""

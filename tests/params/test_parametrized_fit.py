@@ -1,6 +1,5 @@
 """The parametrized Kalman filter with the shipped telescope parameters, and parameter files."""
 
-import json
 
 import numpy as np
 import pytest

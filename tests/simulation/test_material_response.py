@@ -1,10 +1,8 @@
 """Material effects as the simulation applies them at one layer (DESIGN §4, issue 2)."""
 
 import numpy as np
-import pyarrow.parquet as pq
 import pytest
 
-from pkf.geometry import parse_geometry
 from pkf.physics.materials import SI_X0_MM, bethe_mean_loss, highland_theta0
 from pkf.pipeline.simulate import SimulationConfig, simulate_batch
 

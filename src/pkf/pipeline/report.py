@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-from pkf.errors import InputError
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir, staged_output_dir
 from pkf.io.schemas import particle_key
 from pkf.pipeline.inputs import align_mc, content_hash, load_dataset

@@ -179,7 +179,7 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
         extrapolation=result.extrapolation, noise=result.noise, ut_to_scifi=table,
         metadata={
             "pkf_version": pkf.__version__,
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "field_map_hash": field_map.content_hash(),
             "sample": {"dataset": str(Path(dataset_path).resolve()), "events": n_events,
                        "pairs": int(pairs.x1.shape[0]), "meta": dataset.meta.get("config", {})},
