@@ -53,7 +53,7 @@ class TruthSample:
 
     def fit(self, batch=None, **options):
         batch = batch or self.batch
-        return fit_batch(self.extrapolator, batch, FitOptions(**options), self.seeds, self.seed_covs, self.beamline)
+        return fit_batch(self.extrapolator, batch, FitOptions.from_flat(**options), self.seeds, self.seed_covs, self.beamline)
 
     def first_hit_pulls(self, result, select=None):
         """Pulls (n, 5) at the first hit of the tracks with status ok (and `select`)."""

@@ -9,6 +9,7 @@ from scipy.stats import kstest
 
 from pkf.fit.gsf import _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cdf
 from pkf.fit.reference import reference_extrapolator
+from pkf.fit.options import GSFOptions
 from pkf.fit.tracks import FitOptions
 from pkf.geometry import load_geometry, parse_geometry
 from pkf.params.gauss import gaussian_core
@@ -221,12 +222,12 @@ def test_kl_reduction_merges_the_closest_q_over_p_pair():
 def test_gsf_uses_the_electron_mass_and_bremsstrahlung_by_default():
     geometry = load_geometry("telescope")
     ctx = gsf_extrapolator(geometry)
-    assert ctx.bethe_heitler and ctx.ref.mass < 1.0 and FitOptions().max_components == 12
+    assert ctx.bethe_heitler and ctx.ref.mass < 1.0 and FitOptions().gsf.max_components == 12
     assert ctx.output == 3  # "core"
     assert not gsf_extrapolator(geometry, mass=MASS_PION).bethe_heitler
     assert reference_extrapolator(geometry).mass == MASS_PION
     with pytest.raises(ValueError):
-        gsf_extrapolator(geometry, output="median")
+        GSFOptions(output="median")
 
 
 def test_max_components_reaches_the_gsf(tmp_path, capsys):
@@ -243,12 +244,12 @@ def test_max_components_reaches_the_gsf(tmp_path, capsys):
     sample = TruthSample(geometry, events=10, seed=3, **ELECTRONS)
     ctx = gsf_extrapolator(geometry)
     for limit in (1, 4):
-        result = fit_batch_gsf(ctx, sample.batch, FitOptions(max_components=limit), sample.seeds,
+        result = fit_batch_gsf(ctx, sample.batch, FitOptions.from_flat(max_components=limit), sample.seeds,
                                sample.seed_covs)
         ok = result.status == 0
         assert ok.mean() > 0.95 and result.n_components[ok].max() == limit
     with pytest.raises(ValueError):
-        fit_batch_gsf(ctx, sample.batch, FitOptions(max_components=0), sample.seeds, sample.seed_covs)
+        fit_batch_gsf(ctx, sample.batch, FitOptions.from_flat(max_components=0), sample.seeds, sample.seed_covs)
 
     data = tmp_path / "data"
     assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun", "--events", "3",
@@ -258,7 +259,7 @@ def test_max_components_reaches_the_gsf(tmp_path, capsys):
         run = tmp_path / f"run{limit}"
         assert main(["reconstruct", str(data), "--out", str(run), "--pattern", "truth", "--fitter", "gsf",
                      "--max-components", limit, "--workers", "1"]) == 0
-        assert json.loads((run / "run.json").read_text())["config"]["max_components"] == int(limit)
+        assert json.loads((run / "run.json").read_text())["config"]["gsf"]["max_components"] == int(limit)
         table = pq.read_table(run / "states")
         states[limit] = np.column_stack([table.column(c).to_numpy() for c in ("x", "tx", "qop")])
     assert states["1"].shape == states["12"].shape

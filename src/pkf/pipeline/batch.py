@@ -19,7 +19,7 @@ import pyarrow as pa
 from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import get_fitter
-from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
+from pkf.fit.tracks import TrackBatch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.reader import Dataset
 from pkf.io.schemas import (
@@ -96,9 +96,7 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
                          if config.pattern == "triplet" else None),
             beamline_ext=straight_line_extrapolator(geometry),
             field_map=geometry.reconstruction_field(),
-            fit_options={f.name: FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
-                                            iterations=config.iterations or f.iterations,
-                                            max_components=config.max_components) for f in fitters},
+            fit_options={f.name: config.fit_options(f) for f in fitters},
         )
     return _CONTEXTS[key]
 
