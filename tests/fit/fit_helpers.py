@@ -40,12 +40,9 @@ class TruthSample:
         pos = np.searchsorted(key[order], event * (1 << 24) + particle)
         pos = np.minimum(pos, key.size - 1)
         self.production_qop = np.where(particle > 0, p_qop[order][pos], np.nan)
-        cand_event, cand_track, rows = truth_candidates(event, self.layer, particle)
-        new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
-        track = np.cumsum(new) - 1
-        self.batch = TrackBatch.from_candidates(geometry, track, rows, self.layer, self.hits["u"],
-                                                self.hits["v"], self.hits["sigma_u"], self.hits["sigma_v"],
-                                                int(track[-1] + 1))
+        self.batch = TrackBatch.from_candidates(geometry, truth_candidates(event, self.layer, particle), self.layer,
+                                                self.hits["u"], self.hits["v"], self.hits["sigma_u"],
+                                                self.hits["sigma_v"])
         self.field = geometry.reconstruction_field()
         self.seeds, self.seed_covs, self.qop_var = seed_batch(self.batch, self.field)
         self.extrapolator = reference_extrapolator(geometry)

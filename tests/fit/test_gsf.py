@@ -284,6 +284,13 @@ _STOPPING_TRACK_SEED = (-4.209848300979843, -3.5685078338222156, -0.120761033407
                         -0.2565891440557948)
 
 
+def _same_hits_twice(rows):
+    """Two candidates (tracks 0 and 1 of event 0) of the same hit rows."""
+    from pkf.fit.candidates import Candidates
+
+    return Candidates.from_hit_lists(np.zeros(2 * rows.size), np.repeat([0, 1], rows.size), np.tile(rows, 2))
+
+
 def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
     """Issue 13 case 3: a component whose particle stops in a plane (q/p → ±inf, its
     Jacobian inf·0 = NaN) was kept, merged into its neighbours, and a NaN-weighted peak
@@ -300,9 +307,8 @@ def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
     seeds[1, 4] = -1.0 / 1000.0  # the same hits as a 1 GeV electron: fitted
     seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 6.664383619255776e-04]), (2, 1, 1))
     seed_covs[1, 4, 4] = 1e-6
-    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2),
-                                       layers, uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
-                                       np.full(rows.size, 0.0125), 2)
+    batch = TrackBatch.from_candidates(geometry, _same_hits_twice(rows), layers, uv[:, 0], uv[:, 1],
+                                       np.full(rows.size, 0.0125), np.full(rows.size, 0.0125))
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
     assert list(result.status) == [0, 0]
     assert np.all(np.isfinite(result.node_state)) and np.all(np.isfinite(result.chi2))
@@ -321,9 +327,8 @@ def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
     layers = np.array([int(np.flatnonzero(np.isclose(geometry.layer_z, z))[0]) for z in _STOPPING_TRACK_Z])
     uv = np.array(_STOPPING_TRACK_UV)
     rows = np.arange(layers.size)
-    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2), layers,
-                                       uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
-                                       np.full(rows.size, 0.0125), 2)
+    batch = TrackBatch.from_candidates(geometry, _same_hits_twice(rows), layers, uv[:, 0], uv[:, 1],
+                                       np.full(rows.size, 0.0125), np.full(rows.size, 0.0125))
     seeds = np.array([_STOPPING_TRACK_SEED, _STOPPING_TRACK_SEED])
     seeds[:, 4] = -1.0 / 1000.0
     seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 0.0]), (2, 1, 1))

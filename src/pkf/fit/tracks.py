@@ -1,6 +1,6 @@
 """Track batches (CSR) built from hits and candidates, and the Python entry point of the fit.
 
-`TrackBatch.from_candidates` turns candidate hit lists into the node arrays of the
+`TrackBatch.from_candidates` turns the pattern's candidates (`pkf.fit.candidates`) into the node arrays of the
 Kalman core (vectorised, no per-hit Python loop); `fit_batch` fits with the Kalman core
 for any extrapolator; `FitResult.empty` and `fit_locations` (first-hit, last-hit and
 beamline states) are the bookkeeping every fitter's entry point shares.
@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pkf.fit.beamline import beamline_states
+from pkf.fit.candidates import Candidates
 from pkf.fit.driver import fit_tracks, max_nodes
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter
 from pkf.fit.options import FitOptions
@@ -49,13 +50,11 @@ class TrackBatch:
         return np.diff(self.offsets)
 
     @classmethod
-    def from_candidates(cls, geometry: Geometry, track_index: np.ndarray, hit_row: np.ndarray,
-                        layer: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_u: np.ndarray,
-                        sigma_v: np.ndarray, n_tracks: int) -> TrackBatch:
-        """Nodes from (track_index, hit_row) pairs; hit columns are indexed by hit_row.
-
-        Nodes are sorted by (track, z); every track index in [0, n_tracks) may appear.
-        """
+    def from_candidates(cls, geometry: Geometry, candidates: Candidates, layer: np.ndarray, u: np.ndarray,
+                        v: np.ndarray, sigma_u: np.ndarray, sigma_v: np.ndarray) -> TrackBatch:
+        """The nodes of `candidates` (a `Candidates`), track by track, sorted by z within a
+        track; hit columns (layer, u, v [mm], sigma_u, sigma_v [mm]) are indexed by its hit rows."""
+        track_index, hit_row, n_tracks = candidates.track_of_hit, candidates.hit_row, candidates.n_tracks
         layer_of = layer[hit_row].astype(np.int64)
         order = np.lexsort((geometry.layer_z[layer_of], track_index))
         track_index = track_index[order]
