@@ -27,7 +27,6 @@ from fit_helpers import TruthSample  # noqa: E402
 
 from pkf.fit.beamline import beamline_states  # noqa: E402
 from pkf.fit.extrapolator import extrapolate  # noqa: E402
-from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN  # noqa: E402
 from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch  # noqa: E402
 from pkf.geometry import load_geometry  # noqa: E402
 from pkf.params.parameter_set import shipped_parameters  # noqa: E402
@@ -86,8 +85,8 @@ def main() -> None:
         "parametrized": (shipped_parameters(geometry).extrapolator(geometry), True),
         "reference": (sample.extrapolator, False),
     }
-    options = FitOptions(smoother=SMOOTHER_WEIGHTED_MEAN)
-    forward_only = FitOptions(smoother=SMOOTHER_NONE, max_outliers=0)
+    options = FitOptions.from_flat(smoother="weighted-mean")
+    forward_only = FitOptions.from_flat(smoother="forward-only", max_outliers=0)
     results = {}
     for name, (ext, production) in fitters.items():
         warm = subset(batch, np.arange(5))
@@ -95,7 +94,7 @@ def main() -> None:
         fit_batch(ext, warm, forward_only, seeds[:5], covs[:5])
         extrapolate_only(ext, warm.offsets, warm.z, seeds[:5])
         wall, result = best_of(args.repeat, lambda: fit_batch(ext, batch, options, seeds, covs))
-        no_outlier = FitOptions(smoother=SMOOTHER_WEIGHTED_MEAN, max_outliers=0)
+        no_outlier = FitOptions.from_flat(smoother="weighted-mean", max_outliers=0)
         wall_full_single, _ = best_of(args.repeat, lambda: fit_batch(ext, batch, no_outlier, seeds, covs))
         wall_forward, _ = best_of(args.repeat, lambda: fit_batch(ext, batch, forward_only, seeds, covs))
         wall_extrapolation, _ = best_of(args.repeat, lambda: extrapolate_only(ext, batch.offsets, batch.z, seeds))

@@ -98,7 +98,7 @@ def main() -> None:
     fits = {}
     for name, kw, m in configs:
         ctx = gsf_extrapolator(geometry, **kw)
-        opts = FitOptions(max_components=m)
+        opts = FitOptions.from_flat(max_components=m)
         fit_batch_gsf(ctx, warm, opts, seeds[:3], covs[:3], electrons.beamline)
         wall, fits[name] = best_of(args.repeat, lambda ctx=ctx, opts=opts: fit_batch_gsf(ctx, batch, opts, seeds, covs,
                                                                                          electrons.beamline))
@@ -131,7 +131,7 @@ def main() -> None:
     runs = {
         "parametrized": (shipped_parameters(geometry).extrapolator(geometry), fit_batch, options),
         "reference": (pions.extrapolator, fit_batch, options),
-        "reference-2-iterations": (pions.extrapolator, fit_batch, FitOptions(iterations=2)),
+        "reference-2-iterations": (pions.extrapolator, fit_batch, FitOptions.from_flat(iterations=2)),
         "gx2f": (pions.extrapolator, fit_batch_gx2f, options),
     }
     for name, (ext, fit, opts) in runs.items():
@@ -155,7 +155,7 @@ def main() -> None:
     batch = subset(slow.batch, long)
     seeds, covs = slow.seeds[long], slow.seed_covs[long]
     warm = subset(batch, np.arange(3))
-    passes = {f"reference-{i}": (fit_batch, FitOptions(iterations=i)) for i in (1, 2, 3)}
+    passes = {f"reference-{i}": (fit_batch, FitOptions.from_flat(iterations=i)) for i in (1, 2, 3)}
     passes["gx2f"] = (fit_batch_gx2f, options)
     fits = {}
     walls = {}

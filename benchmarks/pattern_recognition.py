@@ -64,8 +64,9 @@ def _timed_pattern(geometry, ext, h) -> tuple[tuple, float, float]:
 
 def _quality(geometry, ext, sample) -> dict:
     h, p, m = sample["h"], sample["p"], sample["m"]
-    cand_event, cand_track, rows = triplet_candidates(geometry, ext, h["event_id"], h["layer"], h["u"], h["v"],
-                                                      h["z"], h["sigma_u"], h["sigma_v"])
+    candidates = triplet_candidates(geometry, ext, h["event_id"], h["layer"], h["u"], h["v"], h["z"],
+                                    h["sigma_u"], h["sigma_v"])
+    cand_event, cand_track, rows = candidates.hit_event, candidates.hit_track, candidates.hit_row
     hit_key = np.where(m["particle_id"] > 0, h["event_id"] * KEY_SCALE + m["particle_id"], 0)
     track_key = cand_event * KEY_SCALE + cand_track
     tracks, track_of_hit = np.unique(track_key, return_inverse=True)

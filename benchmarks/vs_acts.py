@@ -112,7 +112,7 @@ def pkf_rows(sample: TruthSample, electrons: TruthSample, repeat: int) -> dict:
     truth = sample.truth[sample.batch.hit_row[first]]
     runs = {
         "pkf reference, 1 pass": (sample.extrapolator, fit_batch, FitOptions(max_outliers=0)),
-        "pkf reference, 2 passes": (sample.extrapolator, fit_batch, FitOptions(max_outliers=0, iterations=2)),
+        "pkf reference, 2 passes": (sample.extrapolator, fit_batch, FitOptions.from_flat(max_outliers=0, iterations=2)),
         "pkf parametrized": (shipped_parameters(geometry).extrapolator(geometry), fit_batch,
                              FitOptions(max_outliers=0)),
         "pkf gx2f": (sample.extrapolator, fit_batch_gx2f, FitOptions(max_outliers=0)),
@@ -128,7 +128,7 @@ def pkf_rows(sample: TruthSample, electrons: TruthSample, repeat: int) -> dict:
         rows[name] = {"tracks": int(sample.batch.n_tracks), "us_per_track": 1e6 * wall / sample.batch.n_tracks,
                       "ok_fraction": float(ok.mean()), "pull_core": pull_cores(state, cov, t, ok & starts_on_first_plane(sample))}
     ctx = gsf_extrapolator(geometry)
-    opts = FitOptions(max_outliers=0, max_components=GSF_COMPONENTS)
+    opts = FitOptions.from_flat(max_outliers=0, max_components=GSF_COMPONENTS)
     wall, r = best_cpu(repeat, lambda: fit_batch_gsf(ctx, electrons.batch, opts, electrons.seeds, electrons.seed_covs))
     _, state, cov = r.locations["first_hit"]
     ok = r.status == 0

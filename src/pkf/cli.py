@@ -17,6 +17,7 @@ import pkf
 from pkf.errors import InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
+from pkf.fit.options import GSF_OUTPUTS, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
 from pkf.pipeline.config import PATTERNS
 from pkf.pipeline.reconstruct import EVENTS_PER_BATCH
 from pkf.simulation.generators import GENERATORS
@@ -71,11 +72,22 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--outlier-chi2", default=9.0, show_default=True, type=float,
               help="Remove a node whose χ² exceeds this (1-D equivalent).")
 @click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
-@click.option("--iterations", default=None, type=int,
-              help="Fit iterations; later ones linearise around the previous fit. "
+@click.option("--iterations", default=None, type=click.IntRange(min=1),
+              help="Kalman fitters: passes; later ones linearise around the previous fit. "
                    "Default: each fitter's own (reference 2, the others 1).")
-@click.option("--max-components", default=12, show_default=True, type=click.IntRange(min=1),
-              help="GSF: largest number of Gaussian-mixture components (KL merging).")
+@click.option("--smoother", default="weighted-mean", show_default=True, type=click.Choice(SMOOTHERS[:2]),
+              help="Kalman fitters: combine the forward and backward filters by their weighted mean, "
+                   "or run the Rauch–Tung–Striebel smoother (the same states).")
+@click.option("--gx2f-max-updates", default=GX2FOptions.max_updates, show_default=True,
+              type=click.IntRange(min=1), help="GX2F: at most this many Gauss–Newton updates per fit.")
+@click.option("--max-components", default=GSFOptions.max_components, show_default=True,
+              type=click.IntRange(min=1), help="GSF: largest number of Gaussian-mixture components (KL merging).")
+@click.option("--gsf-weight-cut", default=GSFOptions.weight_cut, show_default=True,
+              type=click.FloatRange(min=0.0, max=1.0, max_open=True),
+              help="GSF: drop mixture components below this share of the total weight.")
+@click.option("--gsf-output", default=GSFOptions.output, show_default=True, type=click.Choice(GSF_OUTPUTS),
+              help="GSF: the state written per node: the Gaussian core of the mixture, its mode, "
+                   "its heaviest component, or its mean.")
 @click.option("--workers", default=None, type=int,
               help="Local worker processes (default: all cores; 1 runs in this process).")
 @click.option("--scheduler", default=None,
@@ -94,7 +106,10 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
     """
     from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
 
-    config = ReconstructionConfig(fitters=fitters or ("parametrized",), **options)
+    kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"))
+    gx2f = GX2FOptions(max_updates=options.pop("gx2f_max_updates"))
+    gsf = GSFOptions(options.pop("max_components"), options.pop("gsf_weight_cut"), options.pop("gsf_output"))
+    config = ReconstructionConfig(fitters=fitters or ("parametrized",), kalman=kalman, gx2f=gx2f, gsf=gsf, **options)
     run = run_reconstruction(dataset, out, config, overwrite=overwrite, workers=workers, scheduler=scheduler,
                              events_per_batch=events_per_batch, echo=lambda line: click.echo(line, err=True))
     for name, t in run["timing"]["fit"].items():

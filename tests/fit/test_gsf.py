@@ -9,6 +9,7 @@ from scipy.stats import kstest
 
 from pkf.fit.gsf import _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cdf
 from pkf.fit.reference import reference_extrapolator
+from pkf.fit.options import GSFOptions
 from pkf.fit.tracks import FitOptions
 from pkf.geometry import load_geometry, parse_geometry
 from pkf.params.gauss import gaussian_core
@@ -221,12 +222,12 @@ def test_kl_reduction_merges_the_closest_q_over_p_pair():
 def test_gsf_uses_the_electron_mass_and_bremsstrahlung_by_default():
     geometry = load_geometry("telescope")
     ctx = gsf_extrapolator(geometry)
-    assert ctx.bethe_heitler and ctx.ref.mass < 1.0 and FitOptions().max_components == 12
+    assert ctx.bethe_heitler and ctx.ref.mass < 1.0 and FitOptions().gsf.max_components == 12
     assert ctx.output == 3  # "core"
     assert not gsf_extrapolator(geometry, mass=MASS_PION).bethe_heitler
     assert reference_extrapolator(geometry).mass == MASS_PION
     with pytest.raises(ValueError):
-        gsf_extrapolator(geometry, output="median")
+        GSFOptions(output="median")
 
 
 def test_max_components_reaches_the_gsf(tmp_path, capsys):
@@ -243,12 +244,12 @@ def test_max_components_reaches_the_gsf(tmp_path, capsys):
     sample = TruthSample(geometry, events=10, seed=3, **ELECTRONS)
     ctx = gsf_extrapolator(geometry)
     for limit in (1, 4):
-        result = fit_batch_gsf(ctx, sample.batch, FitOptions(max_components=limit), sample.seeds,
+        result = fit_batch_gsf(ctx, sample.batch, FitOptions.from_flat(max_components=limit), sample.seeds,
                                sample.seed_covs)
         ok = result.status == 0
         assert ok.mean() > 0.95 and result.n_components[ok].max() == limit
     with pytest.raises(ValueError):
-        fit_batch_gsf(ctx, sample.batch, FitOptions(max_components=0), sample.seeds, sample.seed_covs)
+        fit_batch_gsf(ctx, sample.batch, FitOptions.from_flat(max_components=0), sample.seeds, sample.seed_covs)
 
     data = tmp_path / "data"
     assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun", "--events", "3",
@@ -258,7 +259,7 @@ def test_max_components_reaches_the_gsf(tmp_path, capsys):
         run = tmp_path / f"run{limit}"
         assert main(["reconstruct", str(data), "--out", str(run), "--pattern", "truth", "--fitter", "gsf",
                      "--max-components", limit, "--workers", "1"]) == 0
-        assert json.loads((run / "run.json").read_text())["config"]["max_components"] == int(limit)
+        assert json.loads((run / "run.json").read_text())["config"]["gsf"]["max_components"] == int(limit)
         table = pq.read_table(run / "states")
         states[limit] = np.column_stack([table.column(c).to_numpy() for c in ("x", "tx", "qop")])
     assert states["1"].shape == states["12"].shape
@@ -283,6 +284,13 @@ _STOPPING_TRACK_SEED = (-4.209848300979843, -3.5685078338222156, -0.120761033407
                         -0.2565891440557948)
 
 
+def _same_hits_twice(rows):
+    """Two candidates (tracks 0 and 1 of event 0) of the same hit rows."""
+    from pkf.fit.candidates import Candidates
+
+    return Candidates.from_hit_lists(np.zeros(2 * rows.size), np.repeat([0, 1], rows.size), np.tile(rows, 2))
+
+
 def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
     """Issue 13 case 3: a component whose particle stops in a plane (q/p → ±inf, its
     Jacobian inf·0 = NaN) was kept, merged into its neighbours, and a NaN-weighted peak
@@ -299,9 +307,8 @@ def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
     seeds[1, 4] = -1.0 / 1000.0  # the same hits as a 1 GeV electron: fitted
     seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 6.664383619255776e-04]), (2, 1, 1))
     seed_covs[1, 4, 4] = 1e-6
-    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2),
-                                       layers, uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
-                                       np.full(rows.size, 0.0125), 2)
+    batch = TrackBatch.from_candidates(geometry, _same_hits_twice(rows), layers, uv[:, 0], uv[:, 1],
+                                       np.full(rows.size, 0.0125), np.full(rows.size, 0.0125))
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
     assert list(result.status) == [0, 0]
     assert np.all(np.isfinite(result.node_state)) and np.all(np.isfinite(result.chi2))
@@ -320,9 +327,8 @@ def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
     layers = np.array([int(np.flatnonzero(np.isclose(geometry.layer_z, z))[0]) for z in _STOPPING_TRACK_Z])
     uv = np.array(_STOPPING_TRACK_UV)
     rows = np.arange(layers.size)
-    batch = TrackBatch.from_candidates(geometry, np.repeat([0, 1], rows.size), np.tile(rows, 2), layers,
-                                       uv[:, 0], uv[:, 1], np.full(rows.size, 0.0125),
-                                       np.full(rows.size, 0.0125), 2)
+    batch = TrackBatch.from_candidates(geometry, _same_hits_twice(rows), layers, uv[:, 0], uv[:, 1],
+                                       np.full(rows.size, 0.0125), np.full(rows.size, 0.0125))
     seeds = np.array([_STOPPING_TRACK_SEED, _STOPPING_TRACK_SEED])
     seeds[:, 4] = -1.0 / 1000.0
     seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 0.0]), (2, 1, 1))

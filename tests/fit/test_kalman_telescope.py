@@ -5,7 +5,6 @@ import pytest
 from fit_helpers import TruthSample, telescope_without_material
 from scipy import stats
 
-from pkf.fit.kalman import SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN
 from pkf.geometry import load_geometry
 from pkf.params.gauss import gaussian_core
 
@@ -37,10 +36,10 @@ def test_weighted_mean_equals_rts_smoother():
     to get ~1e-4 mm²), so the comparison uses a seed 100× tighter in position and slope;
     the default weighted mean is stable either way (checked below)."""
     sample = TruthSample(load_geometry("telescope"), events=30, seed=3, **GUN)
-    diffuse = sample.fit(smoother=SMOOTHER_WEIGHTED_MEAN, max_outliers=0)
+    diffuse = sample.fit(smoother="weighted-mean", max_outliers=0)
     sample.seed_covs[:, :4, :4] *= 1e-4
-    two_filter = sample.fit(smoother=SMOOTHER_WEIGHTED_MEAN, max_outliers=0)
-    rts = sample.fit(smoother=SMOOTHER_RTS, max_outliers=0)
+    two_filter = sample.fit(smoother="weighted-mean", max_outliers=0)
+    rts = sample.fit(smoother="rts", max_outliers=0)
     assert np.all(two_filter.status == 0) and np.all(rts.status == 0)
     scale = np.sqrt(np.einsum("nii->ni", rts.node_cov))
     # states agree to 1e-6 of their errors, covariances to 1e-6 relative

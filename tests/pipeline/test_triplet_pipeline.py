@@ -104,10 +104,10 @@ def test_events_searched_in_groups_give_the_same_candidates(dataset):
     whole = triplet_candidates(geometry, ext, *columns, group_hits=10**12)
     each_event = triplet_candidates(geometry, ext, *columns, group_hits=1)
     pairs = triplet_candidates(geometry, ext, *columns, group_hits=int(np.bincount(columns[0]).max()) * 2)
-    assert whole[0].size > 1000 and np.unique(whole[0]).size == 6
+    assert whole.hit_row.size > 1000 and np.unique(whole.event_id).size == 6
     for other in (each_event, pairs):
-        for a, b in zip(whole, other):
-            np.testing.assert_array_equal(a, b)
+        for name in ("event_id", "track_id", "offsets", "hit_row"):
+            np.testing.assert_array_equal(getattr(whole, name), getattr(other, name))
 
 
 def test_an_event_above_the_hit_limit_is_counted_and_not_searched(dataset, tmp_path, monkeypatch, capsys):

@@ -130,6 +130,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
+from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import scalar_update
 from pkf.physics.linalg import copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
@@ -149,14 +150,12 @@ OUTPUT_CORE = 3
 OUTPUT_MODE = 0
 OUTPUT_MEAN = 1
 OUTPUT_MAX_WEIGHT = 2
+#: The kernel's code of each `GSFOptions.output` name.
 OUTPUTS = {"core": OUTPUT_CORE, "mode": OUTPUT_MODE, "mean": OUTPUT_MEAN, "max-weight": OUTPUT_MAX_WEIGHT}
 #: Variance of a unit Gaussian truncated to ±3σ: the "core" output's window (as `pkf.report.gauss`).
 _CORE_WINDOW = 3.0
 _CORE_TRUNCATED_VARIANCE = 1.0 - 2.0 * _CORE_WINDOW * math.exp(-0.5 * _CORE_WINDOW**2) / math.sqrt(
     2.0 * math.pi) / math.erf(_CORE_WINDOW / math.sqrt(2.0))
-#: ACTS defaults (docs/physics.md).
-MAX_COMPONENTS = 12
-WEIGHT_CUT = 1e-4
 #: Vague prior of the backward filter (see the module docstring).
 BACKWARD_PRIOR_VARIANCES = (400.0, 400.0, 0.01, 0.01)
 BACKWARD_PRIOR_QOP_FRACTION = 0.1
@@ -185,27 +184,26 @@ class GsfExtrapolator(NamedTuple):
     peak_window: float
 
 
-def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, weight_cut: float = WEIGHT_CUT, output: str = "core",
-                     bethe_heitler: bool | None = None, share_jacobians: bool = True,
-                     mixture: BetheHeitlerMixture | None = None, seed_qop_fraction: float = SEED_QOP_FRACTION,
-                     peak_window: float = PEAK_WINDOW, field=None) -> GsfExtrapolator:
+def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool | None = None,
+                     share_jacobians: bool = True, mixture: BetheHeitlerMixture | None = None,
+                     seed_qop_fraction: float = SEED_QOP_FRACTION, peak_window: float = PEAK_WINDOW,
+                     field=None) -> GsfExtrapolator:
     """The GSF context for `geometry`: mass hypothesis [MeV] (bremsstrahlung modelled by
-    default only for the electron mass), the weight cut, the output ("core", "mode",
-    "max-weight" or "mean"), Jacobian sharing, the Bethe–Heitler mixture
+    default only for the electron mass), Jacobian sharing, the Bethe–Heitler mixture
     (the shipped one by default), the least q/p width of the forward filter's seed (as a
-    fraction of |q/p|) and the "mode" output's peak window (see the module docstring). The largest number of
-    components is a fit option (`FitOptions.max_components`, `--max-components`), set by
-    `fit_batch_gsf`; the context carries the default, MAX_COMPONENTS."""
-    if output not in OUTPUTS:
-        raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, not {output!r}")
+    fraction of |q/p|) and the "mode" output's peak window (see the module docstring). The
+    mixture options (largest number of components, weight cut, output) are fit options
+    (`GSFOptions`, `--max-components`, `--gsf-weight-cut`, `--gsf-output`), set by
+    `fit_batch_gsf`; the context carries their defaults."""
     if bethe_heitler is None:
         bethe_heitler = abs(mass - MASS_ELECTRON) < 1e-6
     mixture = mixture or load_bethe_heitler_mixture()
+    defaults = GSFOptions()
     return GsfExtrapolator(reference_extrapolator(geometry, mass=mass, field=field),
                            np.ascontiguousarray(mixture.coefficients), float(mixture.t_min),
-                           float(mixture.t_max), bool(bethe_heitler), MAX_COMPONENTS, float(weight_cut),
-                           OUTPUTS[output], bool(share_jacobians), float(seed_qop_fraction),
-                           float(peak_window))
+                           float(mixture.t_max), bool(bethe_heitler), defaults.max_components,
+                           defaults.weight_cut, OUTPUTS[defaults.output], bool(share_jacobians),
+                           float(seed_qop_fraction), float(peak_window))
 
 
 @dataclass
@@ -983,13 +981,13 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
                   beamline_extrapolator=None, keep_qop_mixtures: bool = False) -> GsfResult:
     """GSF of every track of `batch` (a `TrackBatch`) with the context `extrapolator`
     (`gsf_extrapolator`), from the Kalman fitters' seeds and seed covariances.
-    `options` (`FitOptions`): the outlier cut, maximum number of outliers and the largest
-    number of mixture components (≥ 1). With `keep_qop_mixtures`, `result.qop_mixture`
+    `options` (`FitOptions`): the outlier cut, maximum number of outliers and the mixture
+    options `options.gsf` (`GSFOptions`). With `keep_qop_mixtures`, `result.qop_mixture`
     (nodes, max_components, 3) holds every node's smoothed q/p marginal (weight, mean
     [1/MeV], variance [1/MeV²]; `qop_mixture_cdf` evaluates it)."""
-    if options.max_components < 1:
-        raise ValueError(f"max_components must be >= 1, not {options.max_components}")
-    ctx = extrapolator._replace(max_components=int(options.max_components))
+    mixture = options.gsf
+    ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
+                                output=OUTPUTS[mixture.output])
     fitter = gsf_fitter(ctx, max_nodes(batch.offsets), batch.n_tracks,
                         np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)))
     result = GsfResult.empty(batch, n_components=fitter.out_n_components, qop_mixture=fitter.out_qop_mixture)

@@ -66,6 +66,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
+from pkf.fit.options import GX2FOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import add_node_information, transport_information
 from pkf.physics.linalg import (
@@ -88,8 +89,8 @@ from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_N
 from pkf.fit.tracks import FitResult, fit_locations, run_fitter
 
 #: ACTS Gx2FitterOptions defaults (seeds/002).
-MAX_UPDATES = 5
-RELATIVE_CHI2_CHANGE = 1e-7
+MAX_UPDATES = GX2FOptions.max_updates  # the defaults live with the option object
+RELATIVE_CHI2_CHANGE = GX2FOptions.relative_chi2_change
 
 
 @dataclass
@@ -494,14 +495,14 @@ register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end)
 
 
 def fit_batch_gx2f(extrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray | None = None,
-                   beamline_extrapolator=None, max_updates: int = MAX_UPDATES,
-                   relative_chi2_change: float = RELATIVE_CHI2_CHANGE) -> GX2FResult:
+                   beamline_extrapolator=None) -> GX2FResult:
     """GX2F of every track of `batch` (a `TrackBatch`) with the reference extrapolator
     context `extrapolator` (`pkf.fit.reference.reference_extrapolator`), starting from
-    `seeds` (T, 5) at the first nodes. `options` (`FitOptions`): the outlier cut and
-    maximum number of outliers (iterations/smoother do not apply). seed_covs is accepted
+    `seeds` (T, 5) at the first nodes. `options` (`FitOptions`): the outlier cut,
+    maximum number of outliers and the Gauss–Newton options `options.gx2f`. seed_covs is accepted
     for the common fit signature and unused: the GX2F needs no prior covariance."""
-    fitter = gx2f_fitter(extrapolator, max_nodes(batch.offsets), batch.n_tracks, max_updates, relative_chi2_change)
+    fitter = gx2f_fitter(extrapolator, max_nodes(batch.offsets), batch.n_tracks, options.gx2f.max_updates,
+                         options.gx2f.relative_chi2_change)
     result = GX2FResult.empty(batch, iterations=fitter.out_iterations, converged=fitter.out_converged)
     run_fitter(fitter, batch, options, seeds, np.zeros((batch.n_tracks, 5, 5)), result)
     fit_locations(result, batch, beamline_extrapolator)

@@ -1,6 +1,6 @@
 """Track batches (CSR) built from hits and candidates, and the Python entry point of the fit.
 
-`TrackBatch.from_candidates` turns candidate hit lists into the node arrays of the
+`TrackBatch.from_candidates` turns the pattern's candidates (`pkf.fit.candidates`) into the node arrays of the
 Kalman core (vectorised, no per-hit Python loop); `fit_batch` fits with the Kalman core
 for any extrapolator; `FitResult.empty` and `fit_locations` (first-hit, last-hit and
 beamline states) are the bookkeeping every fitter's entry point shares.
@@ -11,11 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
 
 from pkf.fit.beamline import beamline_states
+from pkf.fit.candidates import Candidates
 from pkf.fit.driver import fit_tracks, max_nodes
-from pkf.fit.kalman import SMOOTHER_WEIGHTED_MEAN, kalman_fitter
+from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter
+from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
 from pkf.fit.seed import seed_tracks
 from pkf.geometry.detector import KIND_PIXEL, Geometry
@@ -49,13 +50,11 @@ class TrackBatch:
         return np.diff(self.offsets)
 
     @classmethod
-    def from_candidates(cls, geometry: Geometry, track_index: np.ndarray, hit_row: np.ndarray,
-                        layer: np.ndarray, u: np.ndarray, v: np.ndarray, sigma_u: np.ndarray,
-                        sigma_v: np.ndarray, n_tracks: int) -> TrackBatch:
-        """Nodes from (track_index, hit_row) pairs; hit columns are indexed by hit_row.
-
-        Nodes are sorted by (track, z); every track index in [0, n_tracks) may appear.
-        """
+    def from_candidates(cls, geometry: Geometry, candidates: Candidates, layer: np.ndarray, u: np.ndarray,
+                        v: np.ndarray, sigma_u: np.ndarray, sigma_v: np.ndarray) -> TrackBatch:
+        """The nodes of `candidates` (a `Candidates`), track by track, sorted by z within a
+        track; hit columns (layer, u, v [mm], sigma_u, sigma_v [mm]) are indexed by its hit rows."""
+        track_index, hit_row, n_tracks = candidates.track_of_hit, candidates.hit_row, candidates.n_tracks
         layer_of = layer[hit_row].astype(np.int64)
         order = np.lexsort((geometry.layer_z[layer_of], track_index))
         track_index = track_index[order]
@@ -80,24 +79,8 @@ class TrackBatch:
                    np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma)
 
 
-@dataclass(frozen=True)
-class FitOptions:
-    """Options of the fit (docs/physics.md#the-kalman-core): outlier χ² cut and maximum number removed,
-    iterations of the Kalman fitters (the 2nd and later linearise around the previous
-    optimal states), their combination method (weighted mean, or the RTS smoother), and
-    the Gaussian-sum filter's largest number of mixture components (`--max-components`)."""
-
-    outlier_chi2: float = 9.0
-    max_outliers: int = 2
-    iterations: int = 1
-    smoother: int = SMOOTHER_WEIGHTED_MEAN
-    max_components: int = 12
-
-    def outlier_cuts(self) -> np.ndarray:
-        """Cuts on a node's standardised χ² for 1-D and 2-D nodes: `outlier_chi2` for 1-D,
-        and for 2-D the value with the same tail probability (9 → 11.83)."""
-        p_value = chi2_distribution.sf(self.outlier_chi2, 1)
-        return np.array([self.outlier_chi2, chi2_distribution.isf(p_value, 2)])
+#: The Kalman core's code of each `KalmanOptions.smoother` name.
+SMOOTHER_CODES = {"weighted-mean": SMOOTHER_WEIGHTED_MEAN, "rts": SMOOTHER_RTS, "forward-only": SMOOTHER_NONE}
 
 
 @dataclass
@@ -143,9 +126,12 @@ def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.nda
 
 def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.ndarray,
               seed_covs: np.ndarray, beamline_extrapolator=None) -> FitResult:
-    """Fit every track of `batch` with `extrapolator` from the given seeds."""
+    """Fit every track of `batch` with `extrapolator` from the given seeds, with the Kalman
+    options `options.kalman` (None iterations: one pass)."""
     result = FitResult.empty(batch)
-    fitter = kalman_fitter(extrapolator, max_nodes(batch.offsets), options.iterations, options.smoother)
+    kalman = options.kalman
+    fitter = kalman_fitter(extrapolator, max_nodes(batch.offsets), kalman.iterations or 1,
+                           SMOOTHER_CODES[kalman.smoother])
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
     bad_seed = ~np.all(np.isfinite(seeds), axis=1)
     result.status[bad_seed] = STATUS_NO_SEED

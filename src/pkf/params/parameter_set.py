@@ -9,6 +9,7 @@ date, the pkf version and every fit's status.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -237,9 +238,34 @@ def shipped_parameters(geometry: Geometry) -> ParameterSet:
     return params
 
 
+#: Parameter sets this process has read and checked, by (geometry hash, file path and
+#: content hash) — a run reads its file once per process, not once per user of it.
+_LOADED: dict[tuple, ParameterSet] = {}
+
+
 def load_parameters(geometry: Geometry, path: str | Path | None) -> ParameterSet:
     """`--params FILE` if given (checked against the geometry: its hash, then
-    :func:`check_coefficients`), else the shipped default."""
+    :func:`check_coefficients`), else the shipped default. Read once per process and
+    content (the returned set is shared: do not modify it)."""
+    key = (geometry.content_hash, None if path is None else str(path), _content_hash(path))
+    if key not in _LOADED:
+        _LOADED.clear()  # one run, one parameter set: keep no stale ones
+        _LOADED[key] = _load_parameters(geometry, path)
+    return _LOADED[key]
+
+
+def _content_hash(path: str | Path | None) -> str | None:
+    """SHA-256 of the file at `path` (None for the shipped set or a file that cannot be read:
+    `_read_parameter_json` then says why)."""
+    if path is None:
+        return None
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _load_parameters(geometry: Geometry, path: str | Path | None) -> ParameterSet:
     if path is None:
         return shipped_parameters(geometry)
     data = _read_parameter_json(Path(path))

@@ -19,7 +19,7 @@ import pyarrow as pa
 from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import get_fitter
-from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
+from pkf.fit.tracks import TrackBatch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.reader import Dataset
 from pkf.io.schemas import (
@@ -96,9 +96,7 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
                          if config.pattern == "triplet" else None),
             beamline_ext=straight_line_extrapolator(geometry),
             field_map=geometry.reconstruction_field(),
-            fit_options={f.name: FitOptions(outlier_chi2=config.outlier_chi2, max_outliers=config.max_outliers,
-                                            iterations=config.iterations or f.iterations,
-                                            max_components=config.max_components) for f in fitters},
+            fit_options={f.name: config.fit_options(f) for f in fitters},
         )
     return _CONTEXTS[key]
 
@@ -197,25 +195,24 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
     layer = column(chunk, "layer", np.int64)
     with _Clock(timing, "pattern"):
         if ctx.pattern == "truth":
-            cand_event, cand_track, cand_row = truth_candidates(ev, layer, hit_particle)
+            candidates = truth_candidates(ev, layer, hit_particle)
         else:
             crowded = crowded_events(ev)
             if crowded.size:  # not searched: counted, reported in run.json and on stderr
                 summary["events_over_hit_limit"] = {"events": int(crowded.size),
                                                     "limit": triplet_pattern.MAX_EVENT_HITS,
                                                     "event_ids": crowded[:10].tolist()}
-            cand_event, cand_track, cand_row = triplet_candidates(
+            candidates = triplet_candidates(
                 geometry, ctx.pattern_ext, ev, layer, column(chunk, "u"), column(chunk, "v"),
                 column(chunk, "z"), column(chunk, "sigma_u"), column(chunk, "sigma_v"))
-        n_tracks, track_of_hit = _global_tracks(cand_event, cand_track)
-        batch = TrackBatch.from_candidates(
-            geometry, track_of_hit, cand_row, layer, column(chunk, "u"),
-            column(chunk, "v"), column(chunk, "sigma_u"), column(chunk, "sigma_v"), n_tracks)
+        batch = TrackBatch.from_candidates(geometry, candidates, layer, column(chunk, "u"), column(chunk, "v"),
+                                           column(chunk, "sigma_u"), column(chunk, "sigma_v"))
         seeds, seed_covs, _ = seed_batch(batch, ctx.field_map)
-    track_event, track_id = _track_keys(cand_event, cand_track, n_tracks)
+    n_tracks, track_of_hit, cand_row = candidates.n_tracks, candidates.track_of_hit, candidates.hit_row
+    track_event, track_id = candidates.event_id, candidates.track_id
     hit_id = column(chunk, "hit_id", np.int64)
     tables = {"candidates": [table_from_columns(CANDIDATES, {
-        "event_id": cand_event, "track_id": cand_track, "hit_id": hit_id[cand_row]})],
+        "event_id": candidates.hit_event, "track_id": candidates.hit_track, "hit_id": hit_id[cand_row]})],
         "chi2": [], "states": [], "pulls": []}
     summary["candidates"] = n_tracks
     if has_mc:
@@ -272,23 +269,6 @@ def _sorted(table: pa.Table) -> pa.Table:
     """Rows ordered by event, track, then fitter and location (run tables are sorted by event)."""
     keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location") if k in table.column_names]
     return table.sort_by(keys)
-
-
-def _global_tracks(cand_event, cand_track):
-    """Number of tracks and the global (chunk) track index of each candidate hit."""
-    if cand_event.size == 0:
-        return 0, np.zeros(0, dtype=np.int64)
-    new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
-    index = np.cumsum(new) - 1
-    return int(index[-1] + 1), index
-
-
-def _track_keys(cand_event, cand_track, n_tracks):
-    """(event_id, track_id) of each global track index."""
-    if n_tracks == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    new = np.r_[True, (cand_event[1:] != cand_event[:-1]) | (cand_track[1:] != cand_track[:-1])]
-    return cand_event[new], cand_track[new]
 
 
 def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarray):

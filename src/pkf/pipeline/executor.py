@@ -35,7 +35,7 @@ class PartitionTask:
     Attributes:
         name, key: the partition's name and key (see :class:`pkf.pipeline.plan.Partition`).
         dataset: dataset directory (its geometry is read from there).
-        config: the ReconstructionConfig's fields (a dict: unpickling it imports nothing heavy).
+        config: `ReconstructionConfig.to_dict()` (plain types: unpickling it imports nothing heavy).
         tables: per table name, (TableScan without event index, row lo, row hi).
         staging: the run's staging directory.
         numba_cache_dir: the parent's numba cache directory, used when it exists here.
@@ -85,7 +85,7 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None):
     from pkf.pipeline.batch import context_for, reconstruct_batch
     from pkf.pipeline.config import ReconstructionConfig
 
-    config = ReconstructionConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in task.config.items()})
+    config = ReconstructionConfig.from_dict(task.config)
     ctx = context_for(_geometry(task.dataset, config.geometry), config)
     parts = {}
     for name, (scan, lo, hi) in task.tables.items():

@@ -14,7 +14,7 @@ and so on for ``candidates``, ``states`` and ``pulls`` (when MC is present).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +61,7 @@ def _tasks(plan: DatasetPlan, config, staging: Path) -> list[PartitionTask]:
         for name in ("particles", "mc_hits"):
             if name in plan.tables:
                 tables[name] = (light[name], *plan.tables[name].rows_of_events(p.first_event, p.last_event + 1))
-        tasks.append(PartitionTask(p.name, p.key, str(plan.path.resolve()), asdict(config), tables, str(staging),
+        tasks.append(PartitionTask(p.name, p.key, str(plan.path.resolve()), config.to_dict(), tables, str(staging),
                                    str(numba.config.CACHE_DIR)))
     return tasks
 
@@ -94,9 +94,9 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     if echo:
         for line in plan.warnings():
             echo(f"pkf: warning: {line}")
-    run_config = asdict(config) | {"events_per_batch": events_per_batch,
-                                   "fit_iterations": {f.name: config.iterations or f.iterations
-                                                      for f in config.validate()}}
+    run_config = config.to_dict() | {"events_per_batch": events_per_batch,
+                                     "fit_iterations": {f.name: config.fit_options(f).kalman.iterations
+                                                        for f in config.validate()}}
     if config.params is not None and Path(config.params).is_file():
         run_config["params_sha256"] = file_sha256(config.params)
     if geometry_file(config.geometry) is not None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pkf.fit.candidates import Candidates
 from pkf.geometry.detector import Geometry
 from pkf.seeding.forward import extend_velo_tracks
 from pkf.seeding.velo_search import find_velo_tracks
@@ -89,8 +90,7 @@ def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.nd
                        group_hits: int | None = None):
     """Candidates of the hits of a chunk of events (per-hit arrays, sorted by event).
 
-    Returns (cand_event, cand_track, hit_row) like `truth_candidates`: one entry per
-    candidate hit, track ids from 0 within each event. Events with more than
+    Returns the `Candidates` (as `truth_candidates`), track ids from 0 within each event. Events with more than
     `max_event_hits` (`MAX_EVENT_HITS`) hits get none (`crowded_events`); the others are
     searched in groups of whole events of at most `group_hits` (`GROUP_HITS`) hits
     (module docstring).
@@ -107,9 +107,8 @@ def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.nd
         ev, tr, rows = _group_candidates(geometry, forward_extrapolator, *(c[lo:hi] for c in columns))
         parts.append((ev, tr, rows + lo))
     if not parts:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty, empty
+        return Candidates.empty()
     cand_event, cand_track, rows = (np.concatenate(p) for p in zip(*parts))
     if rows_searched is not None:
         rows = rows_searched[rows]
-    return cand_event, cand_track, rows.astype(np.int64)
+    return Candidates.from_hit_lists(cand_event, cand_track, rows)

@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from pkf.fit.candidates import Candidates
+
 MIN_HITS = 3
 
 
 def truth_candidates(event_id: np.ndarray, layer: np.ndarray, particle_id: np.ndarray):
     """Group hit rows by (event, particle).
 
-    Arguments are per hit (hits and their MC particle, aligned). Returns
-    (cand_event, cand_track, hit_row): one entry per candidate hit, track ids counting
-    from 0 within each event in order of particle id.
+    Arguments are per hit (hits and their MC particle, aligned). Returns the
+    `Candidates`, track ids counting from 0 within each event in order of particle id.
     """
     rows = np.flatnonzero(particle_id > 0)
     order = np.lexsort((rows, layer[rows], particle_id[rows], event_id[rows]))
@@ -39,4 +40,4 @@ def truth_candidates(event_id: np.ndarray, layer: np.ndarray, particle_id: np.nd
     new_event[1:] = ev[1:] != ev[:-1]
     global_index = np.cumsum(new_group) - 1
     event_start_index = np.maximum.accumulate(np.where(new_event, global_index, 0))
-    return ev, global_index - event_start_index, rows
+    return Candidates.from_hit_lists(ev, global_index - event_start_index, rows)

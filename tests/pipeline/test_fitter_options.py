@@ -1,0 +1,57 @@
+"""Per-fitter option objects (issue 14, deliverable 2): held by `ReconstructionConfig`, one
+serialisation, and reachable from `pkf reconstruct` (GX2F updates, GSF weight cut and output,
+Kalman smoother)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pkf.cli import main
+from pkf.fit.fitters import get_fitter
+from pkf.fit.options import FitOptions, GSFOptions, GX2FOptions, KalmanOptions
+from pkf.pipeline.config import ReconstructionConfig
+
+
+def test_config_round_trips_and_resolves_each_fitters_passes():
+    config = ReconstructionConfig(fitters=("reference", "parametrized", "gx2f", "gsf"),
+                                  kalman=KalmanOptions(smoother="rts"), gx2f=GX2FOptions(max_updates=3),
+                                  gsf=GSFOptions(max_components=4, weight_cut=1e-3, output="mode"))
+    data = json.loads(json.dumps(config.to_dict()))  # what run.json and the workers hold
+    assert ReconstructionConfig.from_dict(data) == config
+    assert config.fit_options(get_fitter("reference")).kalman.iterations == 2
+    assert config.fit_options(get_fitter("parametrized")).kalman.iterations == 1
+    options = config.fit_options(get_fitter("gsf"))
+    assert options == FitOptions(9.0, 2, KalmanOptions(1, "rts"), GX2FOptions(3), GSFOptions(4, 1e-3, "mode"))
+    with pytest.raises(ValueError):
+        GX2FOptions(max_updates=0)
+    with pytest.raises(TypeError):
+        FitOptions.from_flat(max_update=3)
+
+
+def _states(run, fitter):
+    table = pq.read_table(run / "states")
+    keep = np.asarray(table.column("fitter").to_pylist()) == fitter
+    return np.column_stack([table.column(c).to_numpy()[keep] for c in ("x", "tx", "qop", "c44")])
+
+
+def test_gx2f_and_gsf_options_reach_their_fitters(tmp_path, capsys):
+    data = tmp_path / "data"
+    assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun", "--events", "3",
+                 "--species", "electron", "--particles", "5", "--seed", "5"]) == 0
+    common = ["--pattern", "truth", "--fitter", "gx2f", "--fitter", "gsf", "--workers", "1"]
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "default"), *common]) == 0
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "tuned"), *common, "--gx2f-max-updates", "1",
+                 "--gsf-output", "mean", "--gsf-weight-cut", "0.01"]) == 0
+    config = json.loads((tmp_path / "tuned" / "run.json").read_text())["config"]
+    assert config["gx2f"]["max_updates"] == 1
+    assert config["gsf"] == {"max_components": 12, "weight_cut": 0.01, "output": "mean"}
+    for fitter in ("gx2f", "gsf"):
+        default, tuned = _states(tmp_path / "default", fitter), _states(tmp_path / "tuned", fitter)
+        assert default.shape == tuned.shape and not np.allclose(default, tuned), fitter
+    capsys.readouterr()
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "bad"), "--gsf-output", "median"]) == 2
+    assert "--gsf-output" in capsys.readouterr().err
