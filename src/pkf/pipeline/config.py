@@ -27,6 +27,7 @@ class ReconstructionConfig:
     iterations: int | None = None  # None: each fitter's own (Fitter.iterations)
     max_components: int = 12
     geometry: str | None = None  # --geometry NAME|FILE.toml; None: the one meta.json records
+    track_states: bool = False  # --track-states: also write the per-node states of every stage
 
     def validate(self) -> list[Fitter]:
         if self.pattern not in PATTERNS:
