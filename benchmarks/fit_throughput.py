@@ -5,7 +5,8 @@ by MC particle, and fits the same long tracks with the parametrized and the refe
 fitter in one process, after JIT warm-up (best of --repeat). Prints tables and writes
 JSON: tracks/s, ns/node, the speed-up, the time split by stage as in the paper §5
 (extrapolation; update = forward filter − extrapolation; combination = full fit −
-forward filter; beamline), and δp/p at the first hit (RMS and Gaussian core) in bins of
+forward filter; beamline), the cost of keeping the per-node track states
+(``track_states=True``: predicted, filtered, smoothed), and δp/p at the first hit (RMS and Gaussian core) in bins of
 true momentum, with the parametrized/reference ratio.
 
     python benchmarks/fit_throughput.py [--events 1000] [--repeat 3] [--json out.json]
@@ -96,6 +97,7 @@ def main() -> None:
         wall, result = best_of(args.repeat, lambda: fit_batch(ext, batch, options, seeds, covs))
         no_outlier = FitOptions.from_flat(smoother="weighted-mean", max_outliers=0)
         wall_full_single, _ = best_of(args.repeat, lambda: fit_batch(ext, batch, no_outlier, seeds, covs))
+        wall_states, _ = best_of(args.repeat, lambda: fit_batch(ext, batch, options, seeds, covs, track_states=True))
         wall_forward, _ = best_of(args.repeat, lambda: fit_batch(ext, batch, forward_only, seeds, covs))
         wall_extrapolation, _ = best_of(args.repeat, lambda: extrapolate_only(ext, batch.offsets, batch.z, seeds))
         z0, s0, c0 = result.locations["first_hit"]
@@ -121,6 +123,7 @@ def main() -> None:
         results[name] = {
             "tracks": int(batch.n_tracks), "nodes": int(nodes), "ok_fraction": float(ok.mean()),
             "wall_s": wall, "tracks_per_s": batch.n_tracks / wall, "ns_per_node": 1e9 * wall / nodes,
+            "track_states_ns_per_node": 1e9 * (wall_states - wall) / nodes,
             "split_ns_per_node": {
                 "extrapolation": 1e9 * wall_extrapolation / nodes,
                 "update": 1e9 * (wall_forward - wall_extrapolation) / nodes,
@@ -136,12 +139,14 @@ def main() -> None:
                          / sum(par["split_ns_per_node"][k] for k in ("extrapolation", "update", "combination"))),
         "extrapolation": ref["split_ns_per_node"]["extrapolation"] / par["split_ns_per_node"]["extrapolation"],
     }
-    print(f"{'fitter':<14}{'tracks':>8}{'tracks/s':>11}{'ns/node':>9}  split ns/node: extrap / update / combine / beamline")
+    print(f"{'fitter':<14}{'tracks':>8}{'tracks/s':>11}{'ns/node':>9}  split ns/node: extrap / update / combine / beamline"
+          "; + track states")
     for name in ("parametrized", "reference"):
         r = results[name]
         sp = r["split_ns_per_node"]
         print(f"{name:<14}{r['tracks']:>8}{r['tracks_per_s']:>11.0f}{r['ns_per_node']:>9.0f}  "
-              f"{sp['extrapolation']:.0f} / {sp['update']:.0f} / {sp['combination']:.0f} / {sp['beamline']:.0f}")
+              f"{sp['extrapolation']:.0f} / {sp['update']:.0f} / {sp['combination']:.0f} / {sp['beamline']:.0f}"
+              f"; +{r['track_states_ns_per_node']:.0f}")
     s = results["speed_up"]
     print(f"speed-up parametrized vs reference: fit ×{s['fit']:.1f}, filter steps ×{s['filter_steps']:.1f}, "
           f"extrapolation ×{s['extrapolation']:.1f}")

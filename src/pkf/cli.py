@@ -88,6 +88,9 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--gsf-output", default=GSFOptions.output, show_default=True, type=click.Choice(GSF_OUTPUTS),
               help="GSF: the state written per node: the Gaussian core of the mixture, its mode, "
                    "its heaviest component, or its mean.")
+@click.option("--track-states", is_flag=True,
+              help="Also write the track_states table: every node's predicted, filtered and smoothed "
+                   "state, residuals and χ² (large: ~3 rows per hit and fitter).")
 @click.option("--workers", default=None, type=int,
               help="Local worker processes (default: all cores; 1 runs in this process).")
 @click.option("--scheduler", default=None,
@@ -99,7 +102,8 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
               help="Redo everything and replace an existing --out (default: resume an interrupted run).")
 def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int | None, scheduler: str | None,
                 events_per_batch: int, overwrite: bool, **options) -> None:
-    """Reconstruct DATASET into the run directory --out (chi2, states, pulls, run.json).
+    """Reconstruct DATASET into the run directory --out (chi2, states, pulls, run.json; with
+    --track-states also track_states).
 
     The run is built in a hidden .OUT.partial directory and moved into place at the end;
     rerunning an interrupted command resumes it, skipping the finished partitions.

@@ -132,12 +132,12 @@ import numpy as np
 
 from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
-from pkf.fit.kalman import scalar_update
+from pkf.fit.kalman import NodeStages, node_stages, scalar_update
 from pkf.physics.linalg import copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.fit.tracks import FitResult, fit_locations, run_fitter
+from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
     bethe_heitler_components,
@@ -814,9 +814,12 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 
 @nb.njit(cache=True, error_model="numpy")
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
-               buf, pbuf, count, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix):
+               buf, pbuf, count, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix,
+               stages, lo):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
-    marginals into out_mix (nodes, K, 3) if it has rows. Returns (status, χ², number of
+    marginals into out_mix (nodes, K, 3) if it has rows, and the means and covariances of
+    the predicted, filtered and smoothed mixtures into rows lo… of `stages` (a
+    `NodeStages` with smoothed rows) if it has rows. Returns (status, χ², number of
     components of the smoothed mixture at the first node)."""
     n = z.size
     w, mu, cov = buf[0], buf[1], buf[2]
@@ -825,6 +828,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     cmat = scratch[5]
     chi2 = 0.0
     keep = out_mix.shape[0] > 0
+    keep_stages = stages.predicted.shape[0] > 0
     # ---- forward filter from the seed; with bremsstrahlung its q/p width at least
     # seed_qop_fraction·|q/p| (without, the GSF is the Kalman fit with the same prior)
     w[0] = 1.0
@@ -851,6 +855,8 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
         fwd_n[k] = nc
         for c in range(nc):
             _copy_component(w, mu, cov, c, fwd_w[k], fwd_mu[k], fwd_cov[k], c)
+        if keep_stages:
+            _collapse(w, mu, cov, nc, stages.predicted[lo + k], stages.predicted_cov[lo + k])
         if active[k]:
             inc = _predicted_chi2(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], mean, cmat)
             if inc < 0.0:
@@ -859,12 +865,16 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             nc = _update(w, mu, cov, nc, n_meas[k], hx[k], hy[k], m[k], sigma[k], ctx.weight_cut)
             if nc == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+        if keep_stages:
+            _collapse(w, mu, cov, nc, stages.filtered[lo + k], stages.filtered_cov[lo + k])
     # ---- the last node: the forward filtered mixture is the smoothed one
     for c in range(nc):
         _copy_component(w, mu, cov, c, pw, pmu, pcov, c)
     n_last = _summarise(ctx, pw, pmu, pcov, nc, nearest, nearest_d, alive, out_state[n - 1], out_cov[n - 1])
     if keep:
         _keep_qop_mixture(pw, pmu, pcov, n_last, out_mix[n - 1])
+    if keep_stages:
+        _collapse(pw, pmu, pcov, n_last, stages.smoothed[lo + n - 1], stages.smoothed_cov[lo + n - 1])
     # ---- backward filter from a vague prior at the forward filter's final state
     _collapse(w, mu, cov, nc, mean, cmat)
     w[0] = 1.0
@@ -895,6 +905,8 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
             if keep:
                 _keep_qop_mixture(pw, pmu, pcov, n_first, out_mix[k])
+            if keep_stages:
+                _collapse(pw, pmu, pcov, n_first, stages.smoothed[lo + k], stages.smoothed_cov[lo + k])
         for i in range(5):
             if not (out_cov[k, i, i] > 0.0 and math.isfinite(out_state[k, i])):
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
@@ -905,8 +917,9 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
 
 class GsfFitter(NamedTuple):
     """The GSF as a fitter of `pkf.fit.driver.fit_tracks`: its context, the per-track
-    component counts, the kept q/p mixtures (nodes, K, 3; no rows: not kept) and scratch
-    for the batch's longest track (`gsf_fitter` allocates it). Outliers are found with
+    component counts, the kept q/p mixtures (nodes, K, 3; no rows: not kept), the kept
+    mixture means per stage (`stages`, no rows: not kept) and scratch for the batch's
+    longest track (`gsf_fitter` allocates it). Outliers are found with
     the measurement-only fallback: a mixture's covariance ("mean", "max-weight" outputs)
     can exceed the measurement variance."""
 
@@ -927,11 +940,14 @@ class GsfFitter(NamedTuple):
     bh: np.ndarray
     vec: np.ndarray
     count: np.ndarray
+    stages: NodeStages
 
 
-def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray) -> GsfFitter:
+def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray,
+               stages: NodeStages | None = None) -> GsfFitter:
     """The GSF of context `ctx` for `n_tracks` tracks of up to `n_nodes` nodes, keeping the
-    smoothed q/p mixtures in `qop_mixture` if it has rows."""
+    smoothed q/p mixtures in `qop_mixture` if it has rows and the mixtures' means and
+    covariances per stage in `stages` if given."""
     mc = ctx.max_components
     k_bh = ctx.bh_coefficients.shape[1]
     cap = max(mc * max(k_bh, 1), mc * mc, 2)
@@ -942,7 +958,8 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(cap, dtype=np.bool_),
-        np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64))
+        np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
+        node_stages(0, smoothed=True) if stages is None else stages)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -961,7 +978,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     out_mix = f.out_qop_mixture[lo:hi] if f.out_qop_mixture.shape[0] > 0 else f.out_qop_mixture
     status, chi2, n_comp = _fit_track(f.ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                       f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.nearest_d,
-                                      f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix)
+                                      f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo)
     f.out_n_components[t] = n_comp
     return status, chi2
 
@@ -978,21 +995,30 @@ register_fitter(GsfFitter, _gsf_begin, _gsf_fit, _gsf_end)
 
 
 def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray,
-                  beamline_extrapolator=None, keep_qop_mixtures: bool = False) -> GsfResult:
+                  beamline_extrapolator=None, keep_qop_mixtures: bool = False,
+                  track_states: bool = False) -> GsfResult:
     """GSF of every track of `batch` (a `TrackBatch`) with the context `extrapolator`
     (`gsf_extrapolator`), from the Kalman fitters' seeds and seed covariances.
     `options` (`FitOptions`): the outlier cut, maximum number of outliers and the mixture
     options `options.gsf` (`GSFOptions`). With `keep_qop_mixtures`, `result.qop_mixture`
     (nodes, max_components, 3) holds every node's smoothed q/p marginal (weight, mean
-    [1/MeV], variance [1/MeV²]; `qop_mixture_cdf` evaluates it)."""
+    [1/MeV], variance [1/MeV²]; `qop_mixture_cdf` evaluates it). With `track_states`,
+    `result.track_states` holds the mean and covariance (moment matching) of the
+    predicted, filtered and smoothed (reduced) mixture at every node: the smoothed mean is
+    not the output state (`options.gsf.output`, "core" by default) unless the output is "mean"."""
     mixture = options.gsf
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
                                 output=OUTPUTS[mixture.output])
+    stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
     fitter = gsf_fitter(ctx, max_nodes(batch.offsets), batch.n_tracks,
-                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)))
+                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages)
     result = GsfResult.empty(batch, n_components=fitter.out_n_components, qop_mixture=fitter.out_qop_mixture)
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
     fit_locations(result, batch, beamline_extrapolator)
+    if track_states:
+        result.track_states = collect_track_states(batch, result, {
+            "predicted": (stages.predicted, stages.predicted_cov), "filtered": (stages.filtered, stages.filtered_cov),
+            "smoothed": (stages.smoothed, stages.smoothed_cov)})
     return result
 
 

@@ -86,7 +86,7 @@ from pkf.fit.propagate import (
     scattering_width,
 )
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.fit.tracks import FitResult, fit_locations, run_fitter
+from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 
 #: ACTS Gx2FitterOptions defaults (seeds/002).
 MAX_UPDATES = GX2FOptions.max_updates  # the defaults live with the option object
@@ -495,15 +495,20 @@ register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end)
 
 
 def fit_batch_gx2f(extrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray | None = None,
-                   beamline_extrapolator=None) -> GX2FResult:
+                   beamline_extrapolator=None, track_states: bool = False) -> GX2FResult:
     """GX2F of every track of `batch` (a `TrackBatch`) with the reference extrapolator
     context `extrapolator` (`pkf.fit.reference.reference_extrapolator`), starting from
     `seeds` (T, 5) at the first nodes. `options` (`FitOptions`): the outlier cut,
     maximum number of outliers and the Gauss–Newton options `options.gx2f`. seed_covs is accepted
-    for the common fit signature and unused: the GX2F needs no prior covariance."""
+    for the common fit signature and unused: the GX2F needs no prior covariance. With
+    `track_states`, `result.track_states` holds the node states as "smoothed" only: a
+    global fit has no predicted or filtered state (as ACTS's GX2F)."""
     fitter = gx2f_fitter(extrapolator, max_nodes(batch.offsets), batch.n_tracks, options.gx2f.max_updates,
                          options.gx2f.relative_chi2_change)
     result = GX2FResult.empty(batch, iterations=fitter.out_iterations, converged=fitter.out_converged)
     run_fitter(fitter, batch, options, seeds, np.zeros((batch.n_tracks, 5, 5)), result)
     fit_locations(result, batch, beamline_extrapolator)
+    if track_states:
+        result.track_states = collect_track_states(
+            batch, result, {"smoothed": (result.node_state.copy(), result.node_cov.copy())})
     return result

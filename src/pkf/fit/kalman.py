@@ -38,6 +38,13 @@ the same false-removal probability as `--outlier-chi2` for 1-D nodes (9 → 11.8
 outlier node gets no update (its filtered state is the prediction) but still receives
 an optimal state.
 
+Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
+filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
+given a `NodeStages` record with rows (`node_stages`), the fitter copies them there
+after each track's last fit (`_kalman_end`), so that a fit which does not ask for them
+runs the same code as one before they existed. The smoothed states are the driver's
+output states (`SMOOTHER_NONE`: none; the output states are then the filtered ones).
+
 Helpers the GX2F and the GSF call rather than copy: `scalar_update` (the measurement
 update), `add_node_information` and `transport_information` (measurements in
 information form and their transport upstream).
@@ -59,6 +66,30 @@ from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
 SMOOTHER_NONE = 2  # forward filter only (filtered states as output): for timing studies
+
+
+class NodeStages(NamedTuple):
+    """Track states at every node of a batch (rows: the batch's nodes) from each track's
+    last fit: the predicted, filtered and smoothed states (x, y [mm], tx, ty, q/p [1/MeV])
+    and their 5×5 covariances; an outlier's filtered state is its predicted one. Zero
+    rows: not kept (the smoothed rows only for fitters whose output is not the smoothed
+    state itself, e.g. the GSF's mixture means)."""
+
+    predicted: np.ndarray
+    predicted_cov: np.ndarray
+    filtered: np.ndarray
+    filtered_cov: np.ndarray
+    smoothed: np.ndarray
+    smoothed_cov: np.ndarray
+
+
+def node_stages(n_nodes: int, smoothed: bool = False) -> NodeStages:
+    """A `NodeStages` record for `n_nodes` nodes (NaN until a fit writes them; 0: not kept),
+    with smoothed rows if `smoothed`."""
+    n_smoothed = n_nodes if smoothed else 0
+    return NodeStages(np.full((n_nodes, 5), np.nan), np.full((n_nodes, 5, 5), np.nan),
+                      np.full((n_nodes, 5), np.nan), np.full((n_nodes, 5, 5), np.nan),
+                      np.full((n_smoothed, 5), np.nan), np.full((n_smoothed, 5, 5), np.nan))
 
 
 @nb.njit(cache=True, inline="always")
@@ -353,8 +384,9 @@ def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, ma
 class KalmanFitter(NamedTuple):
     """The Kalman core as a fitter of `pkf.fit.driver.fit_tracks`: the extrapolator
     context, the number of passes (the 2nd and later linearise around the previous
-    optimal states), the combination (SMOOTHER_*), and per-node scratch for the batch's
-    longest track (`kalman_fitter` allocates it)."""
+    optimal states), the combination (SMOOTHER_*), per-node scratch for the batch's
+    longest track (`kalman_fitter` allocates it), and `stages`, where each track's
+    predicted and filtered states go after its last fit (zero rows: nowhere)."""
 
     ext: tuple
     n_iterations: int
@@ -373,16 +405,19 @@ class KalmanFitter(NamedTuple):
     mats: np.ndarray
     vec5: np.ndarray
     perm: np.ndarray
+    stages: NodeStages
 
 
-def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN) -> KalmanFitter:
+def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN,
+                  stages: NodeStages | None = None) -> KalmanFitter:
     """The Kalman fitter of extrapolator context `ext` with scratch for tracks of up to
-    `n_nodes` nodes."""
+    `n_nodes` nodes; it keeps the predicted and filtered states in `stages` if given."""
     return KalmanFitter(ext, int(n_iterations), int(smoother), False, np.zeros(1, dtype=np.bool_),
                         np.empty((n_nodes, 5)), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)),
                         np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5, 5)),
                         np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5)), np.empty((6, 5, 5)),
-                        np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64))
+                        np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64),
+                        node_stages(0) if stages is None else stages)
 
 
 @nb.njit(cache=True, inline="always")
@@ -410,9 +445,22 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
     return status, chi2
 
 
+@nb.njit(cache=True)
+def _keep_stages(f, lo, hi):
+    """Copy the forward filter's scratch of nodes 0…hi−lo−1 into rows lo:hi of f.stages."""
+    s = f.stages
+    for k in range(hi - lo):
+        copy5(f.pred[k], s.predicted[lo + k])
+        copy55(f.pred_cov[k], s.predicted_cov[lo + k])
+        copy5(f.filt[k], s.filtered[lo + k])
+        copy55(f.filt_cov[k], s.filtered_cov[lo + k])
+
+
 @nb.njit(cache=True, inline="always")
 def _kalman_end(f, t, lo, hi, status, out_state, out_cov):
-    """Nothing of its own: the Kalman core's outputs are the driver's."""
+    """Keep the last fit's predicted and filtered states in `f.stages` (if it has rows)."""
+    if f.stages.predicted.shape[0] > 0:
+        _keep_stages(f, lo, hi)
 
 
 register_fitter(KalmanFitter, _kalman_begin, _kalman_fit, _kalman_end)

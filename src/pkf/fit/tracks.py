@@ -3,7 +3,10 @@
 `TrackBatch.from_candidates` turns the pattern's candidates (`pkf.fit.candidates`) into the node arrays of the
 Kalman core (vectorised, no per-hit Python loop); `fit_batch` fits with the Kalman core
 for any extrapolator; `FitResult.empty` and `fit_locations` (first-hit, last-hit and
-beamline states) are the bookkeeping every fitter's entry point shares.
+beamline states) are the bookkeeping every fitter's entry point shares. Asked with
+``track_states=True``, every fit function also returns the per-node predicted /
+filtered / smoothed states (`TrackStates`, the ACTS convention of seeds/002), with each
+stage's residuals, their variances and χ² (`TrackStates.residuals`).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import numpy as np
 from pkf.fit.beamline import beamline_states
 from pkf.fit.candidates import Candidates
 from pkf.fit.driver import fit_tracks, max_nodes
-from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter
+from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
 from pkf.fit.seed import seed_tracks
@@ -83,11 +86,83 @@ class TrackBatch:
 SMOOTHER_CODES = {"weighted-mean": SMOOTHER_WEIGHTED_MEAN, "rts": SMOOTHER_RTS, "forward-only": SMOOTHER_NONE}
 
 
+#: The stages of a track state, in the order of the fit (ACTS, seeds/002): the prediction
+#: from the nodes upstream, the filtered state after the node's own measurement, the
+#: smoothed state from every node of the track.
+STAGES = ("predicted", "filtered", "smoothed")
+
+
+@dataclass
+class NodeResiduals:
+    """Residuals of the nodes' measurements against one stage's states: res (n, 2) = m − h·state
+    [mm] (column 1 NaN on 1-D nodes), var (n, 2) their variances [mm²], V + H·C·Hᵀ for a
+    state that does not contain the measurement (predicted, and every stage of an outlier)
+    and V − H·C·Hᵀ for one that does, and chi2 (n) = rᵀR⁻¹r with R their 1×1 or 2×2
+    covariance (NaN where R is not positive definite)."""
+
+    res: np.ndarray
+    var: np.ndarray
+    chi2: np.ndarray
+
+
+@dataclass
+class TrackStates:
+    """Per-node track states of a fit (ACTS's predicted / filtered / smoothed, seeds/002).
+
+    state[stage] (n_nodes, 5) = (x, y [mm], tx, ty, q/p [1/MeV]) and cov[stage]
+    (n_nodes, 5, 5) for each stage the fitter provides (`stages`: the Kalman fitters all
+    three, without a smoother predicted and filtered; the GX2F smoothed only), on the
+    batch's nodes after each track's last fit; NaN on the nodes of tracks whose fit
+    failed. is_outlier (n_nodes): removed as an outlier, whose filtered state is its
+    predicted one (the node adds no information)."""
+
+    state: dict
+    cov: dict
+    is_outlier: np.ndarray
+
+    @property
+    def stages(self) -> tuple[str, ...]:
+        return tuple(stage for stage in STAGES if stage in self.state)
+
+    def residuals(self, batch: TrackBatch, stage: str) -> NodeResiduals:
+        """The residuals of `batch`'s measurements against the `stage` states (`NodeResiduals`)."""
+        contains_measurement = ~self.is_outlier if stage != "predicted" else np.zeros_like(self.is_outlier)
+        return node_residuals(batch, self.state[stage], self.cov[stage], np.where(contains_measurement, -1.0, 1.0))
+
+
+def node_residuals(batch: TrackBatch, state: np.ndarray, cov: np.ndarray, sign: np.ndarray) -> NodeResiduals:
+    """Residuals r = m − h·state of every node's measurements, their covariance
+    R = V + sign·H·C·Hᵀ (sign (n): +1 or −1 per node) and χ² = rᵀR⁻¹r (`NodeResiduals`)."""
+    h = np.stack([batch.hx, batch.hy], axis=-1)  # (n, 2 measurements, 2 = x, y)
+    res = batch.m - np.einsum("njk,nk->nj", h, state[:, :2])
+    r = np.einsum("njk,nkl,nil->nji", h, cov[:, :2, :2], h) * sign[:, None, None]
+    r[:, 0, 0] += batch.sigma[:, 0] ** 2
+    r[:, 1, 1] += batch.sigma[:, 1] ** 2
+    det = r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0]
+    two = batch.n_meas == 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chi2_2d = (res[:, 0] ** 2 * r[:, 1, 1] - 2.0 * res[:, 0] * res[:, 1] * r[:, 0, 1]
+                   + res[:, 1] ** 2 * r[:, 0, 0]) / det
+        chi2_1d = res[:, 0] ** 2 / r[:, 0, 0]
+    positive = (r[:, 0, 0] > 0.0) & (~two | (det > 0.0))
+    chi2 = np.where(positive, np.where(two, chi2_2d, chi2_1d), np.nan)
+    var = np.stack([r[:, 0, 0], r[:, 1, 1]], axis=1)
+    res[~two, 1] = np.nan
+    var[~two, 1] = np.nan
+    return NodeResiduals(res, var, chi2)
+
+
 @dataclass
 class FitResult:
-    """Output of `fit_batch`: per node optimal states/covariances, χ² contributions and
-    activity (False: removed as outlier); per track status, χ², ndf, outliers, and the
-    states at the first hit, last hit and beamline (z, state (T, 5), cov (T, 5, 5))."""
+    """Output of `fit_batch`: per node the output states/covariances, standardised χ²
+    (`pkf.fit.driver.node_chi2` of the output state) and activity (False: removed as
+    outlier); per track status, χ², ndf, outliers, and the states at the first hit, last
+    hit and beamline (z, state (T, 5), cov (T, 5, 5)).
+
+    node_state/node_cov are the states of stage `node_stage`: "smoothed" (every node's
+    state from all the track's nodes) for every fitter, except the Kalman core without a
+    smoother (`SMOOTHER_NONE`, a timing study) whose output is the "filtered" state.
+    `track_states` (`TrackStates`) is set only when the fit was asked for it."""
 
     node_state: np.ndarray
     node_cov: np.ndarray
@@ -98,6 +173,8 @@ class FitResult:
     ndf: np.ndarray
     n_outliers: np.ndarray
     locations: dict = field(default_factory=dict)
+    node_stage: str = "smoothed"
+    track_states: TrackStates | None = None
 
     @classmethod
     def empty(cls, batch: TrackBatch, **fields):
@@ -125,18 +202,39 @@ def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.ndarray,
-              seed_covs: np.ndarray, beamline_extrapolator=None) -> FitResult:
+              seed_covs: np.ndarray, beamline_extrapolator=None, track_states: bool = False) -> FitResult:
     """Fit every track of `batch` with `extrapolator` from the given seeds, with the Kalman
-    options `options.kalman` (None iterations: one pass)."""
-    result = FitResult.empty(batch)
+    options `options.kalman` (None iterations: one pass); with `track_states`, also keep
+    every node's predicted, filtered and (with a smoother) smoothed state in
+    `result.track_states`."""
     kalman = options.kalman
+    no_smoother = kalman.smoother == "forward-only"
+    result = FitResult.empty(batch, node_stage="filtered" if no_smoother else "smoothed")
+    stages = node_stages(batch.z.size if track_states else 0)
     fitter = kalman_fitter(extrapolator, max_nodes(batch.offsets), kalman.iterations or 1,
-                           SMOOTHER_CODES[kalman.smoother])
+                           SMOOTHER_CODES[kalman.smoother], stages)
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
     bad_seed = ~np.all(np.isfinite(seeds), axis=1)
     result.status[bad_seed] = STATUS_NO_SEED
     fit_locations(result, batch, beamline_extrapolator)
+    if track_states:
+        kept = {"predicted": (stages.predicted, stages.predicted_cov),
+                "filtered": (stages.filtered, stages.filtered_cov)}
+        if not no_smoother:
+            kept["smoothed"] = (result.node_state.copy(), result.node_cov.copy())
+        result.track_states = collect_track_states(batch, result, kept)
     return result
+
+
+def collect_track_states(batch: TrackBatch, result: FitResult, kept: dict) -> TrackStates:
+    """`TrackStates` from kept stage → (state (n, 5), cov (n, 5, 5)) arrays of `batch`'s nodes
+    (set to NaN, in place, on the nodes of tracks whose fit failed) and `result`'s outliers."""
+    failed = np.repeat(result.status != STATUS_OK, batch.n_nodes)
+    for state, cov in kept.values():
+        state[failed] = np.nan
+        cov[failed] = np.nan
+    return TrackStates({stage: kept[stage][0] for stage in kept}, {stage: kept[stage][1] for stage in kept},
+                       ~result.node_active)
 
 
 def run_fitter(fitter, batch: TrackBatch, options: FitOptions, seeds: np.ndarray, seed_covs: np.ndarray,

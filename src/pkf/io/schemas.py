@@ -2,7 +2,8 @@
 
 Dataset tables (written by ``pkf simulate``): :data:`HITS`, :data:`PARTICLES`,
 :data:`MC_HITS`. Run tables (written by ``pkf reconstruct``): :data:`CHI2`,
-:data:`CANDIDATES`, :data:`STATES`, :data:`PULLS`.
+:data:`CANDIDATES`, :data:`STATES`, :data:`PULLS` and, with ``--track-states``,
+:data:`TRACK_STATES`.
 
 Units (docs/formats.md#conventions): lengths in mm, momenta and masses in MeV, ``qop`` in 1/MeV,
 slopes ``tx = dx/dz``, ``ty = dy/dz`` dimensionless.
@@ -30,11 +31,13 @@ __all__ = [
     "CANDIDATES",
     "STATES",
     "PULLS",
+    "TRACK_STATES",
     "DATASET_SCHEMAS",
     "RUN_SCHEMAS",
     "COV_COLUMNS",
     "STATE_COLUMNS",
     "STATE_LOCATIONS",
+    "TRACK_STATE_STAGES",
     "TableSpec",
     "TABLE_SPECS",
     "EVENT_ID_LIMIT",
@@ -59,6 +62,9 @@ COV_COLUMNS: tuple[str, ...] = tuple(f"c{i}{j}" for i in range(5) for j in range
 
 #: Values of the ``location`` column of ``states`` and ``pulls`` (docs/physics.md#the-kalman-core).
 STATE_LOCATIONS: tuple[str, ...] = ("first_hit", "last_hit", "beamline")
+
+#: Values of the ``stage`` column of ``track_states`` (the ACTS convention, seeds/002).
+TRACK_STATE_STAGES: tuple[str, ...] = ("predicted", "filtered", "smoothed")
 
 _TRIU = np.triu_indices(5)
 
@@ -201,6 +207,33 @@ PULLS = _schema(
     ],
 )
 
+#: ``track_states`` (only with ``--track-states``): one row per (event, track, fitter, node,
+#: stage). node: index in z order along the track; stage: :data:`TRACK_STATE_STAGES`; the
+#: stage's state and covariance as in ``states``; res_u/res_v [mm] = measured − the stage
+#: state's u/v and var_res_u/var_res_v [mm²] their variances (v columns null on strip
+#: layers); chi2 the node's χ² at this stage; is_outlier: removed as an outlier.
+TRACK_STATES = _schema(
+    "track_states",
+    [
+        _field("event_id", _I64),
+        _field("track_id", _I64),
+        _field("fitter", _STR),
+        _field("node", _I16),
+        _field("layer", _I16),
+        _field("hit_id", _I64),
+        _field("z", _F64),
+        _field("stage", _STR),
+        *(_field(c, _F64) for c in STATE_COLUMNS),
+        *(_field(c, _F64) for c in COV_COLUMNS),
+        _field("res_u", _F64),
+        _field("var_res_u", _F64),
+        _field("res_v", _F64, nullable=True),
+        _field("var_res_v", _F64, nullable=True),
+        _field("chi2", _F64),
+        _field("is_outlier", pa.bool_()),
+    ],
+)
+
 #: Tables of a dataset directory, by table name (file stem).
 DATASET_SCHEMAS: dict[str, pa.Schema] = {"hits": HITS, "particles": PARTICLES, "mc_hits": MC_HITS}
 #: Tables of a run directory, by table name (file stem).
@@ -209,6 +242,7 @@ RUN_SCHEMAS: dict[str, pa.Schema] = {
     "candidates": CANDIDATES,
     "states": STATES,
     "pulls": PULLS,
+    "track_states": TRACK_STATES,
 }
 
 
@@ -293,6 +327,9 @@ TABLE_SPECS: dict[str, TableSpec] = {
     "candidates": TableSpec("candidates", CANDIDATES, unique_key=("event_id", "track_id", "hit_id")),
     "states": TableSpec("states", STATES, unique_key=("event_id", "track_id", "fitter", "location")),
     "pulls": TableSpec("pulls", PULLS, unique_key=("event_id", "track_id", "fitter", "location")),
+    "track_states": TableSpec("track_states", TRACK_STATES,
+                              unique_key=("event_id", "track_id", "fitter", "node", "stage"),
+                              null_together=(("res_v", "var_res_v"),)),
 }
 
 

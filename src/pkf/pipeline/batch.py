@@ -1,8 +1,8 @@
 """Reconstruction of one batch of events: pattern recognition, fits, MC matching, run-table rows.
 
 The unit of work of `pkf reconstruct` (docs/formats.md): a worker gets a batch's hits and
-MC truth, returns its rows of ``candidates``, ``chi2``, ``states``, ``pulls`` and a small
-summary (counts, timing, pattern-recognition counts) that adds up over batches. The
+MC truth, returns its rows of ``candidates``, ``chi2``, ``states``, ``pulls`` (and, with
+``--track-states``, ``track_states``) and a small summary (counts, timing, pattern-recognition counts) that adds up over batches. The
 output of a batch depends only on its events, so any split into batches and any number
 of workers give the same rows.
 """
@@ -28,6 +28,7 @@ from pkf.io.schemas import (
     PARTICLE_KEY_BASE,
     PULLS,
     STATES,
+    TRACK_STATES,
     pack_covariance,
     particle_key,
     table_from_columns,
@@ -39,8 +40,9 @@ from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_
 from pkf.pipeline.triplet_pattern import crowded_events, triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
 
-RUN_TABLES = ("candidates", "chi2", "states", "pulls")
-RUN_SCHEMAS = {"candidates": CANDIDATES, "chi2": CHI2, "states": STATES, "pulls": PULLS}
+RUN_TABLES = ("candidates", "chi2", "states", "pulls", "track_states")
+RUN_SCHEMAS = {"candidates": CANDIDATES, "chi2": CHI2, "states": STATES, "pulls": PULLS,
+               "track_states": TRACK_STATES}
 
 
 class _Clock:
@@ -75,6 +77,7 @@ class ReconstructionContext:
     beamline_ext: object
     field_map: object
     fit_options: dict  # fitter name → FitOptions
+    track_states: bool = False  # also the per-node states of every stage (`--track-states`)
     warmed: bool = field(default=False)
 
 
@@ -97,6 +100,7 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
             beamline_ext=straight_line_extrapolator(geometry),
             field_map=geometry.reconstruction_field(),
             fit_options={f.name: config.fit_options(f) for f in fitters},
+            track_states=config.track_states,
         )
     return _CONTEXTS[key]
 
@@ -213,7 +217,7 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
     hit_id = column(chunk, "hit_id", np.int64)
     tables = {"candidates": [table_from_columns(CANDIDATES, {
         "event_id": candidates.hit_event, "track_id": candidates.hit_track, "hit_id": hit_id[cand_row]})],
-        "chi2": [], "states": [], "pulls": []}
+        "chi2": [], "states": [], "pulls": [], "track_states": []}
     summary["candidates"] = n_tracks
     if has_mc:
         hit_key = particle_key(ev, hit_particle)
@@ -240,7 +244,8 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         ctx.warmed = True
     for fitter, ext in ctx.fitters_ext:
         with _Clock(timing, f"fit.{fitter.name}") as clock:
-            result = fitter.fit(ext, batch, ctx.fit_options[fitter.name], seeds, seed_covs, ctx.beamline_ext)
+            result = fitter.fit(ext, batch, ctx.fit_options[fitter.name], seeds, seed_covs, ctx.beamline_ext,
+                                track_states=ctx.track_states)
         stats = summary["fit"][fitter.name]
         stats["wall_s"] += clock.elapsed
         stats["tracks"] += n_tracks
@@ -249,13 +254,16 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         tables["chi2"].append(_chi2_table(fitter, geometry, batch, result, track_event, track_id,
                                           mc_particle, fraction, ghost))
         tables["states"].append(_states_table(fitter, result, track_event, track_id))
+        if ctx.track_states:
+            tables["track_states"].append(_track_states_table(fitter, batch, result, track_event, track_id,
+                                                              hit_id))
         if has_mc:
             tables["pulls"].append(_pulls_table(fitter, batch, result, track_event, track_id, mc_particle,
                                                 hit_truth, production))
     summary["timing"] = timing
     out = {}
     for name in RUN_TABLES:
-        if name == "pulls" and not has_mc:
+        if (name == "pulls" and not has_mc) or (name == "track_states" and not ctx.track_states):
             continue
         parts = tables[name]
         if not parts:
@@ -266,8 +274,10 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
 
 
 def _sorted(table: pa.Table) -> pa.Table:
-    """Rows ordered by event, track, then fitter and location (run tables are sorted by event)."""
-    keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location") if k in table.column_names]
+    """Rows ordered by event, track, then fitter and location or node (run tables are sorted
+    by event); the sort is stable, so the stages of a node keep their order."""
+    keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location", "node")
+            if k in table.column_names]
     return table.sort_by(keys)
 
 
@@ -305,6 +315,37 @@ def _states_table(fitter, result, track_event, track_id):
         cols.update(pack_covariance(cov[ok]))
         parts.append(table_from_columns(STATES, cols))
     return pa.concat_tables(parts)
+
+
+def _track_states_table(fitter, batch, result, track_event, track_id, hit_id):
+    """Rows of ``track_states`` of one fitter (docs/formats.md#track_states): every node of
+    the tracks with status ok, one row per stage the fitter provides, node by node in z
+    order and the stages in the order of the fit."""
+    states = result.track_states
+    stages = states.stages
+    track_of_node = np.repeat(np.arange(batch.n_tracks), batch.n_nodes)
+    nodes = np.flatnonzero((result.status == STATUS_OK)[track_of_node])
+    node_tracks = track_of_node[nodes]
+
+    def per_row(values):  # a per-node column on every stage's row
+        return np.repeat(values, len(stages), axis=0)
+
+    def stage_major(arrays):  # per-stage arrays (nodes, …) → rows node-major, stage-minor
+        return np.stack([a[nodes] for a in arrays], axis=1).reshape((-1,) + arrays[0].shape[1:])
+
+    residuals = [states.residuals(batch, stage) for stage in stages]
+    state = stage_major([states.state[stage] for stage in stages])
+    cols = {"event_id": per_row(track_event[node_tracks]), "track_id": per_row(track_id[node_tracks]),
+            "fitter": fitter.name, "node": per_row(nodes - batch.offsets[node_tracks]),
+            "layer": per_row(batch.layer[nodes]), "hit_id": per_row(hit_id[batch.hit_row[nodes]]),
+            "z": per_row(batch.z[nodes]), "stage": np.tile(np.array(stages, dtype=object), nodes.size)}
+    cols.update({name: state[:, i] for i, name in enumerate(STATE_NAMES)})
+    cols.update(pack_covariance(stage_major([states.cov[stage] for stage in stages])))
+    res = stage_major([r.res for r in residuals])
+    var = stage_major([r.var for r in residuals])
+    cols.update({"res_u": res[:, 0], "var_res_u": var[:, 0], "res_v": res[:, 1], "var_res_v": var[:, 1],
+                 "chi2": stage_major([r.chi2 for r in residuals]), "is_outlier": per_row(states.is_outlier[nodes])})
+    return table_from_columns(TRACK_STATES, cols)
 
 
 def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_truth, production):

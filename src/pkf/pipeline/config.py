@@ -36,6 +36,7 @@ class ReconstructionConfig:
     kalman: KalmanOptions = field(default_factory=KalmanOptions)  # iterations None: each fitter's own
     gx2f: GX2FOptions = field(default_factory=GX2FOptions)
     gsf: GSFOptions = field(default_factory=GSFOptions)
+    track_states: bool = False  # --track-states: also write the per-node states of every stage
 
     def validate(self) -> list[Fitter]:
         if self.pattern not in PATTERNS:
