@@ -7,7 +7,9 @@ its pulls are computed against, and which fit function runs it: the one Kalman c
 (`fit_batch`) for the Kalman fitters, `fit_batch_gx2f` for the global χ² fitter (on the
 reference extrapolator) and `fit_batch_gsf` for the Gaussian-sum filter (electron
 hypothesis, docs/physics.md#the-global-χ²-fitter-gx2f). Every fit function has the signature
-``fit(extrapolator, batch, options, seeds, seed_covs, beamline_extrapolator) -> FitResult``.
+``fit(extrapolator, batch, options, seeds, seed_covs, beamline_extrapolator, track_states=False)
+-> FitResult``; with ``track_states=True`` the result's ``track_states`` holds every node's
+predicted, filtered and smoothed states (`pkf.fit.tracks.TrackStates`; the GX2F: smoothed only).
 """
 
 from __future__ import annotations

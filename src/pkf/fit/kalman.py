@@ -41,8 +41,8 @@ an optimal state.
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
 given a `NodeStages` record with rows (`node_stages`), the fitter copies them there
-after each track's last fit (`_kalman_end`), so that a fit which does not ask for them
-runs the same code as one before they existed. The smoothed states are the driver's
+after each track's last fit (`_kalman_end`); a fit that does not ask for them does the
+same arithmetic as before they existed, plus one test per track (measured: no change). The smoothed states are the driver's
 output states (`SMOOTHER_NONE`: none; the output states are then the filtered ones).
 
 Helpers the GX2F and the GSF call rather than copy: `scalar_update` (the measurement
