@@ -117,6 +117,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pkf.geometry.detector import Geometry
+from pkf.seeding.csr import CsrTracks
 from pkf.seeding.forward.kernel import extend_kernel, new_pass_work, new_work
 from pkf.seeding.forward.options import (
     I_QUAD,
@@ -147,7 +148,7 @@ __all__ = [
 
 
 @dataclass
-class ForwardTracks:
+class ForwardTracks(CsrTracks):
     """Result of `extend_velo_tracks`, one entry per input VELO track (same order).
 
     hit_rows[offsets[t]:offsets[t+1]]: rows of the input hit arrays added to track t
@@ -172,22 +173,9 @@ class ForwardTracks:
     from_scan: np.ndarray
 
     @property
-    def n_tracks(self) -> int:
-        return int(self.status.size)
-
-    @property
-    def n_hits(self) -> np.ndarray:
-        return np.diff(self.offsets)
-
-    @property
-    def track_of_hit(self) -> np.ndarray:
-        return np.repeat(np.arange(self.n_tracks, dtype=np.int64), self.n_hits)
-
-    @property
     def found(self) -> np.ndarray:
         """Tracks extended into the SciFi (status ok or no UT)."""
         return (self.status == STATUS_OK) | (self.status == STATUS_NO_UT)
-
 
 
 def _new_output(n: int, n_fwd: int) -> Output:

@@ -15,6 +15,7 @@ import numba as nb
 import numpy as np
 
 from pkf.jit import NO_REFCOUNT
+from pkf.seeding.forward.kalman import first_at_least
 from pkf.seeding.forward.records import Hough
 
 
@@ -58,26 +59,27 @@ def _interval(a, row, lut, inv_cell):
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _convert(v, x, y, lut, inv_cell):
+    """y(v) for the breakpoint rows x → y, odd in v: linear between the breakpoints."""
+    a = abs(v)
+    lo = _interval(a, x, lut, inv_cell)
+    hi = lo + 1
+    w = y[lo] + (a - x[lo]) * (y[hi] - y[lo]) / (x[hi] - x[lo])
+    return w if v >= 0.0 else -w
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def t_of_q(q, hough):
     """Hough coordinate of q/p in units of the local tolerance τ(q): piecewise linear
     through the breakpoints (each interval's bin width lies between τ at its ends; a
     logarithm per hit would cost more than the rest of the scan)."""
-    tg, lut_q, inv_q, _, _ = hough
-    a = abs(q)
-    lo = _interval(a, tg[0], lut_q, inv_q)
-    hi = lo + 1
-    t = tg[1, lo] + (a - tg[0, lo]) * (tg[1, hi] - tg[1, lo]) / (tg[0, hi] - tg[0, lo])
-    return t if q >= 0.0 else -t
+    return _convert(q, hough.grid[0], hough.grid[1], hough.lut_q, hough.inv_cell_q)
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def q_of_t(t, hough):
-    tg, _, _, lut_t, inv_t = hough
-    a = abs(t)
-    lo = _interval(a, tg[1], lut_t, inv_t)
-    hi = lo + 1
-    q = tg[0, lo] + (a - tg[1, lo]) * (tg[0, hi] - tg[0, lo]) / (tg[1, hi] - tg[1, lo])
-    return q if t >= 0.0 else -q
+    """The inverse of `t_of_q`."""
+    return _convert(t, hough.grid[1], hough.grid[0], hough.lut_t, hough.inv_cell_t)
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -163,16 +165,8 @@ def hough_entries(lay, hits, hough, scan, n_nodes, pc, q_rms, z_ut, nsig, t_lo, 
         margin = nsig * math.sqrt(var) + 1.0
         x_min = inv_x[li, 0] - margin
         x_max = inv_x[li, n_nodes - 1] + margin
-        lo = loe[x_fwd[li]]
         hi = loe[x_fwd[li] + 1]
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if hu[mid] < x_min:
-                lo = mid + 1
-            else:
-                hi = mid
-        h = lo
-        hi = loe[x_fwd[li] + 1]
+        h = first_at_least(hu, loe[x_fwd[li]], hi, x_min)
         seg = 0
         while h < hi and hu[h] <= x_max and n_e < max_entries:
             if used[h]:

@@ -117,6 +117,18 @@ def maybe_crossed(x, y, vx, vy, acc, j):
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def first_at_least(hu, lo, hi, x):
+    """The first row h in lo … hi−1 with hu[h] ≥ x (hu sorted; hi if none), by bisection."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if hu[mid] < x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def pvalue_ok(chi2, n_meas, cut):
     return chi2 <= cut[min(n_meas, cut.shape[0] - 1)]
 

@@ -14,6 +14,7 @@ import numba as nb
 
 from pkf.jit import NO_REFCOUNT
 from pkf.seeding.forward.hough import node_interp
+from pkf.seeding.forward.kalman import first_at_least
 from pkf.seeding.forward.records import MAX_PER_LAYER
 
 
@@ -49,16 +50,8 @@ def stereo_score(hits, lay, scan, n_nodes, q_c, alpha, beta, sig2, pc, z_ut, nsi
         var = s * s * max(vy, 0.0) + c * c * sig2 + f_sig[j] * f_sig[j]
         up = c * x + s * y_ref
         hw = nsig * math.sqrt(var)
-        lo = loe[j]
-        hi = loe[j + 1]
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if hu[mid] < up - hw:
-                lo = mid + 1
-            else:
-                hi = mid
         best = nsig * nsig
-        h = lo
+        h = first_at_least(hu, loe[j], loe[j + 1], up - hw)
         while h < loe[j + 1] and hu[h] <= up + hw:
             if not used[h]:
                 best = min(best, (hu[h] - up) ** 2 / var)
@@ -105,24 +98,13 @@ def line_fit(n_x, chosen, rx, x_z, sig2, w_beta):
     return n, chi2, alpha, beta
 
 
-@nb.njit(cache=True, **NO_REFCOUNT)
-def cluster_fit(kb, ke, entries, hu, lin, t_c, line, sig2, w_beta):
-    """Straight-line test of a q/p cluster in the SciFi x layers.
-
-    The entries kb … ke−1 (in entries.order, `Entries`) are hits on x layer
-    entries.layer; their x residual to the trajectory at the cluster's q/p is r = u −
-    x_c[layer] (lin=False, x_c = line.d_l: the interpolated trajectory) or, to first order, (t − t_c)·x_c[layer] (lin=True, x_c:
-    τ(q_c)·dx/dq; cheaper, for ranking). Lines through one entry of the first and one of
-    the last layer (the MAX_PER_LAYER nearest to the trajectory on each) pick the nearest
-    entry on every other layer; the best line by χ² is refitted with β ~ N(0, 1/w_beta):
-    given q/p the VELO state predicts the direction in the SciFi, random coincidences of
-    implied q/p have random directions and do not line up. Returns (n_layers, χ², α, β);
-    line.chosen[li] (entry or −1) and line.rx[li] its residual (`LineWork`).
-    """
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _collect_nearest(kb, ke, entries, hu, lin, t_c, line):
+    """Per x layer the MAX_PER_LAYER entries of kb … ke−1 nearest to the trajectory (see
+    `cluster_fit`), sorted by |residual|: line.cand_e, cand_r, cand_n."""
     e_hit, e_t, e_li, e_order = entries.hit, entries.t, entries.layer, entries.order
-    chosen, rx, x_z, x_c, cand_e, cand_r, cand_n = line
-    n_x = x_z.shape[0]
-    for li in range(n_x):
+    _, _, x_z, x_c, cand_e, cand_r, cand_n = line
+    for li in range(x_z.shape[0]):
         cand_n[li] = 0
     for kk in range(kb, ke):
         ent = e_order[kk]
@@ -141,17 +123,26 @@ def cluster_fit(kb, ke, entries, hu, lin, t_c, line, sig2, w_beta):
             m -= 1
         cand_r[li, m] = r
         cand_e[li, m] = ent
-    lf = -1
-    ll = -1
-    for li in range(n_x):
-        if cand_n[li] > 0:
-            if lf < 0:
-                lf = li
-            ll = li
-    if lf < 0:
-        for li in range(n_x):
-            chosen[li] = -1
-        return 0, 0.0, 0.0, 0.0
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _nearest(cand_r, cand_n, li, pred):
+    """(|distance|, index) of the entry of x layer li nearest to the residual pred (1e300, −1: none)."""
+    bd = 1e300
+    best = -1
+    for m in range(cand_n[li]):
+        dd = abs(cand_r[li, m] - pred)
+        if dd < bd:
+            bd = dd
+            best = m
+    return bd, best
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _best_line(lf, ll, line, sig2, w_beta):
+    """Of the lines through one entry of x layer lf and one of ll, the one whose nearest
+    entries on every layer give the lowest χ² (slope prior w_beta). Returns (α, β)."""
+    _, _, x_z, _, _, cand_r, cand_n = line
     best_chi = 1e300
     best_a = 0.0
     best_b = 0.0
@@ -164,30 +155,54 @@ def cluster_fit(kb, ke, entries, hu, lin, t_c, line, sig2, w_beta):
                 b_ = 0.0
             a_ = r1 - b_ * (x_z[lf] - x_z[0])
             chi = b_ * b_ * w_beta
-            for li in range(n_x):
+            for li in range(x_z.shape[0]):
                 if cand_n[li] == 0:
                     continue
-                pred = a_ + b_ * (x_z[li] - x_z[0])
-                bd = 1e300
-                for m in range(cand_n[li]):
-                    dd = abs(cand_r[li, m] - pred)
-                    bd = min(bd, dd)
+                bd, _ = _nearest(cand_r, cand_n, li, a_ + b_ * (x_z[li] - x_z[0]))
                 chi += bd * bd / sig2
             if chi < best_chi:
                 best_chi = chi
                 best_a = a_
                 best_b = b_
+    return best_a, best_b
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def cluster_fit(kb, ke, entries, hu, lin, t_c, line, sig2, w_beta):
+    """Straight-line test of a q/p cluster in the SciFi x layers.
+
+    The entries kb … ke−1 (in entries.order, `Entries`) are hits on x layer
+    entries.layer; their x residual to the trajectory at the cluster's q/p is
+    r = u − x_c[layer] (lin=False, x_c = line.d_l: the interpolated trajectory) or, to
+    first order, (t − t_c)·x_c[layer] (lin=True, x_c: τ(q_c)·dx/dq; cheaper, for
+    ranking). Lines through one entry of the first and one of the last layer (the
+    MAX_PER_LAYER nearest to the trajectory on each) pick the nearest entry on every
+    other layer; the best line by χ² is refitted with β ~ N(0, 1/w_beta): given q/p the
+    VELO state predicts the direction in the SciFi, random coincidences of implied q/p
+    have random directions and do not line up. Returns (n_layers, χ², α, β);
+    line.chosen[li] (entry or −1) and line.rx[li] its residual (`LineWork`).
+    """
+    chosen, rx, x_z, _, cand_e, cand_r, cand_n = line
+    n_x = x_z.shape[0]
+    _collect_nearest(kb, ke, entries, hu, lin, t_c, line)
+    lf = -1
+    ll = -1
+    for li in range(n_x):
+        if cand_n[li] > 0:
+            if lf < 0:
+                lf = li
+            ll = li
+    if lf < 0:
+        for li in range(n_x):
+            chosen[li] = -1
+        return 0, 0.0, 0.0, 0.0
+    best_a, best_b = _best_line(lf, ll, line, sig2, w_beta)
     for li in range(n_x):
         chosen[li] = -1
         if cand_n[li] == 0:
             continue
-        pred = best_a + best_b * (x_z[li] - x_z[0])
-        bd = 1e300
-        for m in range(cand_n[li]):
-            dd = abs(cand_r[li, m] - pred)
-            if dd < bd:
-                bd = dd
-                chosen[li] = cand_e[li, m]
-                rx[li] = cand_r[li, m]
+        _, m = _nearest(cand_r, cand_n, li, best_a + best_b * (x_z[li] - x_z[0]))
+        if m >= 0:
+            chosen[li] = cand_e[li, m]
+            rx[li] = cand_r[li, m]
     return line_fit(n_x, chosen, rx, x_z, sig2, w_beta)
-

@@ -159,48 +159,35 @@ class ForwardOptions:
                 raise ValueError(message)
 
     def vectors(self, p_table: float) -> tuple[np.ndarray, np.ndarray]:
+        """The float and integer option vectors of the kernels (indices O_*, I_*); p_table:
+        the UT→SciFi table's p_min [MeV] (the q/p node spacing is in its units)."""
         f = np.zeros(N_FOPT)
+        for index, name in _FLOAT_OPTIONS:
+            f[index] = getattr(self, name)
         f[O_QMAX] = 1.0 / self.p_min
-        f[O_VSX] = self.velo_sigma_x
-        f[O_VMSX] = self.velo_ms_x
-        f[O_VSTX] = self.velo_sigma_tx
-        f[O_VMSTX] = self.velo_ms_tx
         f[O_UT_QPRIOR] = self.ut_q_prior / self.p_min
         f[O_WEAK_QPRIOR] = 10.0 / self.p_min
-        f[O_UT_NSIG] = self.ut_window_sigmas
-        f[O_HOUGH_NSIG] = self.hough_sigmas
-        f[O_TAU0] = self.hough_tol_abs
-        f[O_TAU1] = self.hough_tol_rel
         f[O_NODE_DW] = self.node_spacing / p_table
-        f[O_NSIG] = self.window_sigmas
-        f[O_PM_FLOOR] = self.pseudo_floor
-        f[O_LINE_SIG] = self.line_sigma
-        f[O_LINE_MS] = self.line_ms
-        f[O_LINE_CHI2] = self.line_chi2
-        f[O_MISS] = self.miss_penalty
-        f[O_SLOPE_MS] = self.slope_ms
-        f[O_MODEL] = self.scifi_model_noise
-        f[O_CONFIRM_NSIG] = self.confirm_window_sigmas
         i = np.zeros(N_IOPT, dtype=np.int64)
-        i[I_UT_MIN] = self.ut_min_hits
-        i[I_UT_FIRST] = self.ut_first_branches
-        i[I_BRANCH] = self.max_branch
-        i[I_MIN_X] = self.hough_min_x_layers
-        i[I_MAX_CLUSTERS] = self.max_clusters
-        i[I_SF_MIN] = self.scifi_min_hits
-        i[I_FALLBACK] = int(self.no_ut_fallback)
-        i[I_CONFIRM_MIN] = self.ut_confirm_min_hits
-        i[I_MAX_NODES] = self.max_nodes
-        i[I_QUAD] = int(self.quadratic_continuation)
-        i[I_STATION_X] = int(self.station_x_and_stereo)
-        i[I_UT_CANDIDATES] = self.ut_candidates
-        i[I_STEREO_CANDIDATES] = self.stereo_candidates
-        i[I_NOUT_MIN] = self.no_ut_min_hits
-        i[I_UT_REFITS] = self.ut_refits
-        i[I_UT_BRANCH] = self.ut_branch
-        i[I_WINDOW_BINS] = self.window_bins
-        i[I_TAKE_HITS] = int(self.take_hits)
-        i[I_STEREO_MIN] = self.stereo_min_layers
+        for index, name in _INT_OPTIONS:
+            i[index] = int(getattr(self, name))
         return f, i
 
 
+#: options copied as they are into the float and integer vectors
+_FLOAT_OPTIONS = (
+    (O_VSX, "velo_sigma_x"), (O_VMSX, "velo_ms_x"), (O_VSTX, "velo_sigma_tx"), (O_VMSTX, "velo_ms_tx"),
+    (O_UT_NSIG, "ut_window_sigmas"), (O_HOUGH_NSIG, "hough_sigmas"), (O_TAU0, "hough_tol_abs"),
+    (O_TAU1, "hough_tol_rel"), (O_NSIG, "window_sigmas"), (O_PM_FLOOR, "pseudo_floor"),
+    (O_LINE_SIG, "line_sigma"), (O_LINE_MS, "line_ms"), (O_LINE_CHI2, "line_chi2"), (O_MISS, "miss_penalty"),
+    (O_SLOPE_MS, "slope_ms"), (O_MODEL, "scifi_model_noise"), (O_CONFIRM_NSIG, "confirm_window_sigmas"),
+)
+_INT_OPTIONS = (
+    (I_UT_MIN, "ut_min_hits"), (I_UT_FIRST, "ut_first_branches"), (I_BRANCH, "max_branch"),
+    (I_MIN_X, "hough_min_x_layers"), (I_MAX_CLUSTERS, "max_clusters"), (I_SF_MIN, "scifi_min_hits"),
+    (I_FALLBACK, "no_ut_fallback"), (I_CONFIRM_MIN, "ut_confirm_min_hits"), (I_MAX_NODES, "max_nodes"),
+    (I_QUAD, "quadratic_continuation"), (I_STATION_X, "station_x_and_stereo"), (I_UT_CANDIDATES, "ut_candidates"),
+    (I_STEREO_CANDIDATES, "stereo_candidates"), (I_NOUT_MIN, "no_ut_min_hits"), (I_UT_REFITS, "ut_refits"),
+    (I_UT_BRANCH, "ut_branch"), (I_WINDOW_BINS, "window_bins"), (I_TAKE_HITS, "take_hits"),
+    (I_STEREO_MIN, "stereo_min_layers"),
+)

@@ -15,7 +15,7 @@ import math
 import numba as nb
 
 from pkf.jit import NO_REFCOUNT
-from pkf.seeding.forward.kalman import copy_leaf, load_start, maybe_crossed, predict, update
+from pkf.seeding.forward.kalman import copy_leaf, first_at_least, load_start, maybe_crossed, predict, update
 from pkf.seeding.forward.records import MODE_FIXED, MODE_OFF, MODE_SEARCH
 
 _INLINE = dict(cache=True, inline="always", **NO_REFCOUNT)
@@ -60,16 +60,7 @@ def _window_children(d, up, hw, sb, kmax, nsig, lo, hi, hits, ch_hit, ch_chi):
     used: the kmax best by Δχ² into ch_hit[d], ch_chi[d] (sorted). Returns their number."""
     _, hu, hsig, used = hits
     nc = 0
-    # first hit with u >= up − hw (bisection)
-    a_ = lo
-    b_ = hi
-    while a_ < b_:
-        mid = (a_ + b_) >> 1
-        if hu[mid] < up - hw:
-            a_ = mid + 1
-        else:
-            b_ = mid
-    h = a_
+    h = first_at_least(hu, lo, hi, up - hw)
     while h < hi and hu[h] <= up + hw:
         r = hu[h] - up
         c2 = r * r / (sb + hsig[h] * hsig[h])
