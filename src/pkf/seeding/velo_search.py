@@ -96,6 +96,7 @@ A track's χ²/ndf is that of its chain plus the triplets that added hits in ste
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 from dataclasses import asdict, dataclass, field
 
 import numba as nb
@@ -104,6 +105,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from pkf.geometry.detector import KIND_PIXEL, SIDE_LEFT, SIDE_RIGHT, SUBDETECTORS, Geometry
 from pkf.jit import NO_REFCOUNT
+from pkf.seeding.csr import CsrTracks
 from pkf.seeding.triplet_fit import (
     DEFAULT_B_THRESHOLD,
     DEFAULT_P_MIN,
@@ -147,6 +149,84 @@ _N_TF = 9
 _N_TI = 4
 
 _MAX_NDF_TABLE = 1024  # χ² cut table length (ndf index)
+
+
+class VeloConfig(NamedTuple):
+    """The options of one kernel call (`VeloSearchOptions`, as the kernels read them):
+    χ² cuts per ndf for triplets and pairs (chi2_cut) and for whole chains (chain_cut,
+    empty: none), the Highland mass and momenta [MeV], the field threshold [T], the
+    luminous region z_lo … z_hi [mm], the doublet tolerance tol0 + tol1·r [mm], the
+    extension's σ_MS momentum and its ratio ms_scale to p_min's, and the switches."""
+
+    chi2_cut: np.ndarray
+    chain_cut: np.ndarray
+    mass: float
+    b_threshold: float
+    p_min: float
+    straight: bool
+    max_missing: int
+    z_lo: float
+    z_hi: float
+    tol0: float
+    tol1: float
+    window_sigmas: float
+    margin: float
+    min_hits: int
+    max_shared: float
+    keep_best: bool
+    all_skips: bool
+    extend: bool
+    extend_missing: int
+    extend_p_min: float
+    ms_scale: float
+    same_side: bool
+    fill_gaps: bool
+    second_pass: bool
+
+
+class EventHits(NamedTuple):
+    """The sorted VELO hits of all events: lay_off[e·nl + l] first row of module l of event
+    e; hit (n, _N_H) table; hlay module of each row; lt (nl, _N_LAYER_COLUMNS) module
+    table; bin_off the φ-bin table of the current event (`_fill_bins`); used: taken by
+    an accepted track; nl: number of modules."""
+
+    lay_off: np.ndarray
+    hit: np.ndarray
+    hlay: np.ndarray
+    lt: np.ndarray
+    bin_off: np.ndarray
+    used: np.ndarray
+    nl: int
+
+
+class FitBuffers(NamedTuple):
+    """Scratch of one triplet fit (`triplet_geometry_row`): hits (3, 3), variances (3, 3),
+    field (3), geometry row."""
+
+    hbuf: np.ndarray
+    vbuf: np.ndarray
+    bbuf: np.ndarray
+    gbuf: np.ndarray
+
+
+class Triplets(NamedTuple):
+    """The triplet tables of an event: hits th (·, 3), floats tf (·, _N_TF), ints ti
+    (·, _N_TI) and per hit the first triplet starting there (head_first, linked lists)."""
+
+    th: np.ndarray
+    tf: np.ndarray
+    ti: np.ndarray
+    head_first: np.ndarray
+
+
+class TrackOut(NamedTuple):
+    """The growing output: event index per track, CSR offsets, first states and χ²
+    (·, _N_OUT), hit rows."""
+
+    event: np.ndarray
+    off: np.ndarray
+    f: np.ndarray
+    hits: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -231,7 +311,7 @@ class VeloSearchOptions:
 
 
 @dataclass
-class VeloTracks:
+class VeloTracks(CsrTracks):
     """VELO track candidates (CSR), output of `find_velo_tracks`.
 
     Track t has hits ``hit_rows[offsets[t]:offsets[t+1]]`` (rows of the input arrays,
@@ -255,20 +335,6 @@ class VeloTracks:
     chi2: np.ndarray
     ndf: np.ndarray
     stats: dict
-
-    @property
-    def n_tracks(self) -> int:
-        return int(self.event_id.size)
-
-    @property
-    def n_hits(self) -> np.ndarray:
-        """Number of hits per track."""
-        return np.diff(self.offsets)
-
-    @property
-    def track_of_hit(self) -> np.ndarray:
-        """Track index of each entry of ``hit_rows``."""
-        return np.repeat(np.arange(self.n_tracks, dtype=np.int64), self.n_hits)
 
     def state_array(self) -> np.ndarray:
         """First states as an (n_tracks, 4) array of (x, y, tx, ty)."""
@@ -511,15 +577,71 @@ def _add_triplet(th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd, chi2_cut,
     return nt + 1
 
 
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _window_ranges(bin_off, k, xp, yp, wx, wy):
+    """Index ranges (`_bin_ranges`) of the hits of module k in the φ window that holds the
+    box ±(wx, wy) [mm] around (xp, yp)."""
+    w = 1.4143 * max(wx, wy)
+    rp = math.sqrt(xp * xp + yp * yp)
+    wphi = 1.0001 * math.asin(w / rp) if w < rp else 4.0
+    return _bin_ranges(bin_off, k, math.atan2(yp, xp), wphi)
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _best_free_hit(ev, k, box, first, middle, last, m_fit, p_min, cfg, buf):
+    """The free hit c of module k in the box (xp, yp, wx, wy) [mm] whose triplet (first,
+    middle, last) — c in the place marked −1 — has the lowest χ² within the cut, fitted
+    with the field and x/X0 of module m_fit and σ_MS at p_min [MeV]. Returns (c or −1,
+    χ², ndf, fits)."""
+    _, hit, _, lt, bin_off, used, _ = ev
+    hbuf, vbuf, bbuf, gbuf = buf
+    xp, yp, wx, wy = box
+    a0, a1, c0, c1 = _window_ranges(bin_off, k, xp, yp, wx, wy)
+    best_c = -1
+    best_c2 = np.inf
+    best_nd = 0
+    n_fits = 0
+    for rng in range(2):
+        s0 = a0 if rng == 0 else c0
+        s1 = a1 if rng == 0 else c1
+        for c in range(s0, s1):
+            if used[c] or abs(hit[c, _H_X] - xp) > wx or abs(hit[c, _H_Y] - yp) > wy:
+                continue
+            for u in range(3):
+                h = first if u == 0 else (middle if u == 1 else last)
+                if h < 0:
+                    h = c
+                hbuf[u, 0] = hit[h, _H_X]
+                hbuf[u, 1] = hit[h, _H_Y]
+                hbuf[u, 2] = hit[h, _H_Z]
+                vbuf[u, 0] = hit[h, _H_VX]
+                vbuf[u, 1] = hit[h, _H_VY]
+            bbuf[0] = lt[m_fit, _L_BX]
+            bbuf[1] = lt[m_fit, _L_BY]
+            bbuf[2] = lt[m_fit, _L_BZ]
+            triplet_geometry_row(hbuf, bbuf, vbuf, cfg.b_threshold, gbuf)
+            _k, _vk, c2, nd, _s, _kp, _kt, st = fit_triplet_kinks(
+                gbuf, lt[m_fit, _L_X0], cfg.mass, cfg.b_threshold, p_min, FORM_CURVATURE, cfg.straight)
+            n_fits += 1
+            ok = (st & STATUS_INVALID) == 0
+            if ok and c2 <= cfg.chi2_cut[nd] and c2 < best_c2:
+                best_c = c
+                best_c2 = c2
+                best_nd = nd
+    return best_c, best_c2, best_nd, n_fits
+
+
 @nb.njit(cache=True, **NO_REFCOUNT)
-def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut, mass,
-                  b_threshold, p_min, ms_scale, straight, window_sigmas, margin, max_missing,
-                  hbuf, vbuf, bbuf, gbuf):
+def _extend_track(trk, lo, hi, ev, e, cfg, buf):
     """Extend an accepted track trk[lo:hi] (hit rows in z order) downstream, then
     upstream: from its last (first) two hits, the line is followed through the next
     modules, allowing up to `max_missing` crossed modules without a hit; the free hit
     with the best triplet χ² below the cut (triplet fit at the inner hit) is added and
-    the search continues from the new last two hits. Returns (lo, hi, Σχ², Σndf, fits)."""
+    the search continues from the new last two hits (σ_MS at cfg.extend_p_min, up to
+    cfg.extend_missing crossed modules without a hit). Returns (lo, hi, Σχ², Σndf, fits)."""
+    lay_off, hit, hlay, lt, _, used, nl = ev
+    p_min, ms_scale, max_missing = cfg.extend_p_min, cfg.ms_scale, cfg.extend_missing
+    window_sigmas, margin = cfg.window_sigmas, cfg.margin
     c2_sum = 0.0
     nd_sum = 0
     n_fits = 0
@@ -576,40 +698,11 @@ def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi
                         v1y = hit[p1, _H_VY]
                         wx, wy = _window(hit[p0, _H_VX], hit[p0, _H_VY], v1x, v1y, rho, ms,
                                          tx, ty, window_sigmas)
-                        w = 1.4143 * max(wx, wy)
-                        rp = math.sqrt(xp * xp + yp * yp)
-                        wphi = 1.0001 * math.asin(w / rp) if w < rp else 4.0
-                        a0, a1, c0, c1 = _bin_ranges(bin_off, k, math.atan2(yp, xp), wphi)
-                        for rng in range(2):
-                            s0 = a0 if rng == 0 else c0
-                            s1_ = a1 if rng == 0 else c1
-                            for c in range(s0, s1_):
-                                if (used[c] or abs(hit[c, _H_X] - xp) > wx
-                                        or abs(hit[c, _H_Y] - yp) > wy):
-                                    continue
-                                # along the motion: (p0, p1, c) downstream, (c, p1, p0) upstream
-                                first = p0 if direction == 1 else c
-                                last = c if direction == 1 else p0
-                                for u in range(3):
-                                    h = first if u == 0 else (p1 if u == 1 else last)
-                                    hbuf[u, 0] = hit[h, _H_X]
-                                    hbuf[u, 1] = hit[h, _H_Y]
-                                    hbuf[u, 2] = hit[h, _H_Z]
-                                    vbuf[u, 0] = hit[h, _H_VX]
-                                    vbuf[u, 1] = hit[h, _H_VY]
-                                bbuf[0] = lt[j, _L_BX]
-                                bbuf[1] = lt[j, _L_BY]
-                                bbuf[2] = lt[j, _L_BZ]
-                                triplet_geometry_row(hbuf, bbuf, vbuf, b_threshold, gbuf)
-                                _k, _vk, c2, nd, _s, _kp, _kt, st = fit_triplet_kinks(
-                                    gbuf, lt[j, _L_X0], mass, b_threshold, p_min,
-                                    FORM_CURVATURE, straight)
-                                n_fits += 1
-                                ok = (st & STATUS_INVALID) == 0
-                                if ok and c2 <= chi2_cut[nd] and c2 < best_c2:
-                                    best_c = c
-                                    best_c2 = c2
-                                    best_nd = nd
+                        # along the motion: (p0, p1, c) downstream, (c, p1, p0) upstream
+                        best_c, best_c2, best_nd, nf = _best_free_hit(
+                            ev, k, (xp, yp, wx, wy), p0 if direction == 1 else -1, p1,
+                            -1 if direction == 1 else p0, j, p_min, cfg, buf)
+                        n_fits += nf
                     if best_c >= 0:
                         break
                     if _inside(xp, yp, margin, lt[k, _L_HALF_X], lt[k, _L_HALF_Y],
@@ -637,13 +730,13 @@ def _extend_track(trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
-def _fill_gaps(trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut,
-               mass, b_threshold, p_min, straight, window_sigmas, margin,
-               hbuf, vbuf, bbuf, gbuf):
+def _fill_gaps(trk, lo, hi, tmp, ev, e, cfg, buf):
     """Add free hits on the modules crossed between consecutive hits of trk[lo:hi] (the
     other VELO half in the overlap strip, or hits the chain skipped): the point is
     interpolated between the two hits and the free hit with the best χ² of the triplet
     (before, hit, after) below the cut is taken. Returns (hi, Σχ², Σndf, fits)."""
+    lay_off, hit, hlay, lt, _, used, nl = ev
+    window_sigmas, margin = cfg.window_sigmas, cfg.margin
     n = 0
     c2_sum = 0.0
     nd_sum = 0
@@ -684,39 +777,9 @@ def _fill_gaps(trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, c
             vy = hit[h0, _H_VY] * (1 - f) ** 2 + hit[h1, _H_VY] * f * f + hit[h0, _H_VY]
             wx = window_sigmas * math.sqrt(vx + ms * (1.0 + tx * tx))
             wy = window_sigmas * math.sqrt(vy + ms * (1.0 + ty * ty))
-            w = 1.4143 * max(wx, wy)
-            rp = math.sqrt(xp * xp + yp * yp)
-            wphi = 1.0001 * math.asin(w / rp) if w < rp else 4.0
-            a0, a1, c0, c1 = _bin_ranges(bin_off, k, math.atan2(yp, xp), wphi)
-            best_c = -1
-            best_c2 = np.inf
-            best_nd = 0
-            for rng in range(2):
-                s0 = a0 if rng == 0 else c0
-                s1 = a1 if rng == 0 else c1
-                for c in range(s0, s1):
-                    if used[c] or abs(hit[c, _H_X] - xp) > wx or abs(hit[c, _H_Y] - yp) > wy:
-                        continue
-                    for u in range(3):
-                        h = h0 if u == 0 else (c if u == 1 else h1)
-                        hbuf[u, 0] = hit[h, _H_X]
-                        hbuf[u, 1] = hit[h, _H_Y]
-                        hbuf[u, 2] = hit[h, _H_Z]
-                        vbuf[u, 0] = hit[h, _H_VX]
-                        vbuf[u, 1] = hit[h, _H_VY]
-                    bbuf[0] = lt[k, _L_BX]
-                    bbuf[1] = lt[k, _L_BY]
-                    bbuf[2] = lt[k, _L_BZ]
-                    triplet_geometry_row(hbuf, bbuf, vbuf, b_threshold, gbuf)
-                    _k, _vk, c2, nd, _s, _kp, _kt, st = fit_triplet_kinks(
-                        gbuf, lt[k, _L_X0], mass, b_threshold, p_min, FORM_CURVATURE,
-                        straight)
-                    n_fits += 1
-                    ok = (st & STATUS_INVALID) == 0
-                    if ok and c2 <= chi2_cut[nd] and c2 < best_c2:
-                        best_c = c
-                        best_c2 = c2
-                        best_nd = nd
+            best_c, best_c2, best_nd, nf = _best_free_hit(ev, k, (xp, yp, wx, wy), h0, -1, h1, k, cfg.p_min,
+                                                          cfg, buf)
+            n_fits += nf
             if best_c >= 0:
                 used[best_c] = True
                 tmp[n] = best_c
@@ -843,10 +906,7 @@ def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
-def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, bin_off, used,
-                     chi2_cut, mass, b_threshold, p_min, straight, max_missing, z_lo, z_hi,
-                     tol0, tol1, window_sigmas, margin, keep_best, all_skips, th, tf, ti,
-                     head_first, dbl_a, dbl_m, hbuf, vbuf, bbuf, gbuf, counters):
+def _search_triplets(e, side_only, j_start, b_start, nt, ev, cfg, store, dbl_a, dbl_m, buf, counters):
     """Triplet search and merging of event e (module docstring, steps 3–5) on the unused
     hits: doublets, third hits, triplet fits, links to the best continuation.
     side_only: triplets on one VELO half. Starts at middle module j_start, at its row
@@ -858,7 +918,14 @@ def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, b
     if not it returns early, before any side effect of b, for the caller to grow them
     and resume at b. Returns (nt, j, b, need): need = 0 when the event is done, else the
     rows needed to resume at module j, row b. counters[0] += doublets tried,
-    counters[1] += triplet fits."""
+    counters[1] += triplet fits. dbl_a, dbl_m: scratch of b's doublets (first hit, modules
+    skipped)."""
+    lay_off, hit, _, lt, bin_off, used, nl = ev
+    th, tf, ti, head_first = store
+    hbuf, vbuf, bbuf, gbuf = buf
+    chi2_cut, mass, b_threshold, p_min, straight = cfg.chi2_cut, cfg.mass, cfg.b_threshold, cfg.p_min, cfg.straight
+    max_missing, z_lo, z_hi, tol0, tol1 = cfg.max_missing, cfg.z_lo, cfg.z_hi, cfg.tol0, cfg.tol1
+    window_sigmas, margin, keep_best, all_skips = cfg.window_sigmas, cfg.margin, cfg.keep_best, cfg.all_skips
     max_module_hits = 0
     for k in range(nl):
         max_module_hits = max(max_module_hits, lay_off[e * nl + k + 1] - lay_off[e * nl + k])
@@ -1003,11 +1070,7 @@ def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, b
                         ms = m0 * zk * zk - 2.0 * zk * m1 + m2
                         wx, wy = _window(vxa, vya, vxb, vyb, rho, ms, tx, ty,
                                          window_sigmas)
-                        w = 1.4143 * max(wx, wy)
-                        rp = math.sqrt(xp * xp + yp * yp)
-                        wphi = 1.0001 * math.asin(w / rp) if w < rp else 4.0
-                        a0, a1, c0, c1 = _bin_ranges(bin_off, k, math.atan2(yp, xp),
-                                                     wphi)
+                        a0, a1, c0, c1 = _window_ranges(bin_off, k, xp, yp, wx, wy)
                         best_c = -1
                         best_c2 = np.inf
                         best_score = np.inf
@@ -1085,16 +1148,16 @@ def _search_triplets(e, nl, side_only, j_start, b_start, nt, lay_off, hit, lt, b
 
 
 @nb.njit(cache=True)
-def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi2_cut,
-               chain_cut, mass, b_threshold, p_min, straight, window_sigmas, margin,
-               min_hits, max_shared, fill_gaps, extend, extend_missing, extend_p_min,
-               ms_scale, both_halves, trk, tmp, hbuf, vbuf, bbuf, gbuf, counters,
-               o_event, o_off, o_f, o_hits, n_out, n_out_hits):
+def _arbitrate(e, nt, both_halves, ev, cfg, store, trk, tmp, buf, counters, out, n_out, n_out_hits):
     """Candidates (chains that are nobody's continuation), arbitration, gap filling,
     extension and first states of event e (module docstring, steps 6–8); appends the
     accepted tracks to the output arrays. both_halves: keep only candidates with free
-    hits on both VELO halves (the second pass). Returns (o_event, o_off, o_f, o_hits, n_out,
-    n_out_hits). counters[1] += triplet fits, counters[3] += candidates."""
+    hits on both VELO halves (the second pass). Returns (out, n_out, n_out_hits), out
+    (`TrackOut`) grown if needed. counters[1] += triplet fits, counters[3] += candidates."""
+    _, _, hlay, lt, _, used, nl = ev
+    th, tf, ti, _ = store
+    o_event, o_off, o_f, o_hits = out
+    straight, chain_cut, min_hits, max_shared = cfg.straight, cfg.chain_cut, cfg.min_hits, cfg.max_shared
     # ---------------- candidates: chains that are nobody's continuation ---------
     n_cand = 0
     for t in range(nt):
@@ -1154,20 +1217,13 @@ def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi
                 used[trk[u]] = True
                 trk[hi] = trk[u]
                 hi += 1
-        if fill_gaps:
-            hi, c2x, ndx, nfx = _fill_gaps(
-                trk, lo, hi, tmp, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut,
-                mass, b_threshold, p_min, straight, window_sigmas, margin,
-                hbuf, vbuf, bbuf, gbuf)
+        if cfg.fill_gaps:
+            hi, c2x, ndx, nfx = _fill_gaps(trk, lo, hi, tmp, ev, e, cfg, buf)
             c2 += c2x
             nd += ndx
             counters[1] += nfx
-        if extend:
-            lo, hi, c2x, ndx, nfx = _extend_track(
-                trk, lo, hi, hit, bin_off, hlay, lay_off, e, nl, lt, used, chi2_cut, mass,
-                b_threshold, extend_p_min, ms_scale, straight, window_sigmas, margin,
-                extend_missing,
-                hbuf, vbuf, bbuf, gbuf)
+        if cfg.extend:
+            lo, hi, c2x, ndx, nfx = _extend_track(trk, lo, hi, ev, e, cfg, buf)
             c2 += c2x
             nd += ndx
             counters[1] += nfx
@@ -1180,7 +1236,7 @@ def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi
         for u in range(lo, hi):
             o_hits[n_out_hits] = trk[u]
             n_out_hits += 1
-        z0, x0, y0, slx, sly = _line_state(trk, lo, hi, hit)
+        z0, x0, y0, slx, sly = _line_state(trk, lo, hi, ev.hit)
         o_event[n_out] = e
         o_f[n_out, _O_Z] = z0
         o_f[n_out, _O_X] = x0
@@ -1191,21 +1247,16 @@ def _arbitrate(e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi
         o_f[n_out, _O_NDF] = nd
         n_out += 1
         o_off[n_out] = n_out_hits
-    return o_event, o_off, o_f, o_hits, n_out, n_out_hits
+    return TrackOut(o_event, o_off, o_f, o_hits), n_out, n_out_hits
 
 
 @nb.njit(cache=True)
-def _velo_search_kernel(lay_off, n_events, nl, hit, hlay, lt, chi2_cut, chain_cut, mass,
-                        b_threshold, p_min, straight, max_missing, z_lo, z_hi, tol0, tol1,
-                        window_sigmas, margin, min_hits, max_shared, keep_best, all_skips,
-                        extend, extend_missing, extend_p_min, ms_scale, same_side,
-                        fill_gaps, second_pass):
+def _velo_search_kernel(lay_off, n_events, nl, hit, hlay, lt, cfg):
     """All events: triplet search, merging, arbitration, first states (module docstring).
 
     lay_off[e*nl + l]: first row of module l of event e in `hit` (rows sorted by event,
     module, φ); hit: (n, _N_H) table; hlay: module of each row; lt: (nl,
-    _N_LAYER_COLUMNS) module table; chi2_cut[ndf]: χ² cut at the p-value; chain_cut: the
-    same for whole chains (empty: no cut). Returns (track event index, CSR offsets, hit
+    _N_LAYER_COLUMNS) module table; cfg: `VeloConfig`. Returns (track event index, CSR offsets, hit
     rows, (n_tracks, _N_OUT) first states and χ², stats).
     """
     n = hit.shape[0]
@@ -1230,6 +1281,10 @@ def _velo_search_kernel(lay_off, n_events, nl, hit, hlay, lt, chi2_cut, chain_cu
     n_out = np.int64(0)  # typed, not a literal: one compilation of _arbitrate
     n_out_hits = np.int64(0)
     counters = np.zeros(4, dtype=np.int64)  # doublets, fits, triplets, candidates
+    ev = EventHits(lay_off, hit, hlay, lt, bin_off, used, nl)
+    buf = FitBuffers(hbuf, vbuf, bbuf, gbuf)
+    out = TrackOut(o_event, o_off, o_f, o_hits)
+    same_side = cfg.same_side
     for e in range(n_events):
         ev_lo = lay_off[e * nl]
         ev_hi = lay_off[(e + 1) * nl]
@@ -1239,36 +1294,30 @@ def _velo_search_kernel(lay_off, n_events, nl, hit, hlay, lt, chi2_cut, chain_cu
         # pass 0: triplets on one VELO half (or on both, same_side=False); pass 1 (when
         # same_side and second_pass): both halves, on the hits left unused, for short
         # tracks in the overlap strip with fewer than three hits on either half
-        for pass_ in range(2 if (same_side and second_pass) else 1):
+        for pass_ in range(2 if (same_side and cfg.second_pass) else 1):
             side_only = same_side and pass_ == 0
             both_halves = same_side and pass_ == 1
             nt = 0
             j = nl - 2
             b = -1
             while True:
-                nt, j, b, need = _search_triplets(
-                    e, nl, side_only, j, b, nt, lay_off, hit, lt, bin_off, used, chi2_cut,
-                    mass, b_threshold, p_min, straight, max_missing, z_lo, z_hi, tol0, tol1,
-                    window_sigmas, margin, keep_best, all_skips, th, tf, ti, head_first,
-                    dbl_a, dbl_m, hbuf, vbuf, bbuf, gbuf, counters)
+                nt, j, b, need = _search_triplets(e, side_only, j, b, nt, ev, cfg,
+                                                  Triplets(th, tf, ti, head_first), dbl_a, dbl_m, buf,
+                                                  counters)
                 if need == 0:
                     break
                 th, tf, ti = _grow_triplets(th, tf, ti, need)
             counters[2] += nt
-            o_event, o_off, o_f, o_hits, n_out, n_out_hits = _arbitrate(
-                e, nl, nt, th, tf, ti, lay_off, hit, hlay, lt, bin_off, used, chi2_cut,
-                chain_cut, mass, b_threshold, p_min, straight, window_sigmas, margin,
-                min_hits, max_shared, fill_gaps, extend, extend_missing, extend_p_min,
-                ms_scale, both_halves, trk, tmp, hbuf, vbuf, bbuf, gbuf, counters,
-                o_event, o_off, o_f, o_hits, n_out, n_out_hits)
+            out, n_out, n_out_hits = _arbitrate(e, nt, both_halves, ev, cfg, Triplets(th, tf, ti, head_first),
+                                                trk, tmp, buf, counters, out, n_out, n_out_hits)
             for h in range(ev_lo, ev_hi):
                 head_first[h] = -1
     stats = np.zeros(_N_STATS, dtype=np.int64)
     stats[0] = n
     stats[1:5] = counters
     stats[5] = n_out
-    return (o_event[:n_out].copy(), o_off[:n_out + 1].copy(), o_hits[:n_out_hits].copy(),
-            o_f[:n_out].copy(), stats)
+    return (out.event[:n_out].copy(), out.off[:n_out + 1].copy(), out.hits[:n_out_hits].copy(),
+            out.f[:n_out].copy(), stats)
 
 
 # ------------------------------------------------------------------------------------
@@ -1370,16 +1419,17 @@ def find_velo_tracks(event_id, layer, x, y, z, sigma, geometry: Geometry,
     chi2_cut = _chi2_table(opts.pvalue, _MAX_NDF_TABLE)
     chain_cut = (_chi2_table(opts.chain_pvalue, _MAX_NDF_TABLE) if opts.chain_pvalue > 0
                  else np.zeros(0))
-    o_event, o_off, o_hits, o_f, stats = _velo_search_kernel(
-        lay_off, events.size, nl, hit, hlay, lt, chi2_cut, chain_cut,
-        float(opts.mass), float(opts.b_threshold), float(opts.p_min), bool(opts.straight),
-        int(opts.max_missing), -float(opts.z_luminous), float(opts.z_luminous),
-        float(opts.doublet_tolerance), float(opts.doublet_tolerance_slope),
-        float(opts.window_sigmas), float(opts.edge_margin),
-        int(opts.min_hits), float(opts.max_shared), bool(opts.keep_best),
-        bool(opts.all_skips), bool(opts.extend), int(opts.extend_missing), ext_p,
-        _ms_ratio(ext_p, opts.p_min, opts.mass, lt), bool(opts.same_side),
-        bool(opts.fill_gaps), bool(opts.second_pass))
+    cfg = VeloConfig(
+        chi2_cut=chi2_cut, chain_cut=chain_cut, mass=float(opts.mass), b_threshold=float(opts.b_threshold),
+        p_min=float(opts.p_min), straight=bool(opts.straight), max_missing=int(opts.max_missing),
+        z_lo=-float(opts.z_luminous), z_hi=float(opts.z_luminous), tol0=float(opts.doublet_tolerance),
+        tol1=float(opts.doublet_tolerance_slope), window_sigmas=float(opts.window_sigmas),
+        margin=float(opts.edge_margin), min_hits=int(opts.min_hits), max_shared=float(opts.max_shared),
+        keep_best=bool(opts.keep_best), all_skips=bool(opts.all_skips), extend=bool(opts.extend),
+        extend_missing=int(opts.extend_missing), extend_p_min=ext_p,
+        ms_scale=_ms_ratio(ext_p, opts.p_min, opts.mass, lt), same_side=bool(opts.same_side),
+        fill_gaps=bool(opts.fill_gaps), second_pass=bool(opts.second_pass))
+    o_event, o_off, o_hits, o_f, stats = _velo_search_kernel(lay_off, events.size, nl, hit, hlay, lt, cfg)
     hit_rows = rows[o_hits]
     return VeloTracks(
         event_id=events[o_event],
