@@ -19,6 +19,7 @@ import pyarrow as pa
 from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import get_fitter
+from pkf.fit.seed import TRACK_TYPE_NAMES
 from pkf.fit.tracks import FitOptions, TrackBatch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.reader import Dataset
@@ -307,6 +308,7 @@ def _chi2_table(fitter, geometry, batch, result, track_event, track_id, mc_parti
     ndf = result.ndf
     return table_from_columns(CHI2, {
         "event_id": track_event, "track_id": track_id, "fitter": fitter.name,
+        "track_type": np.array(TRACK_TYPE_NAMES, dtype=object)[batch.track_type],
         "n_velo": counts["velo"], "n_ut": counts["ut"], "n_scifi": counts["scifi"],
         "n_outliers": result.n_outliers, "chi2": result.chi2, "ndf": ndf,
         "chi2_ndf": np.where(ok & (ndf > 0), result.chi2 / np.maximum(ndf, 1), np.nan),
