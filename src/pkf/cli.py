@@ -73,7 +73,7 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
 @click.option("--iterations", default=None, type=int,
               help="Fit iterations; later ones linearise around the previous fit. "
-                   "Default: each fitter's own (reference 2, the others 1).")
+                   "Default: each fitter's own (reference and parametrized 2, the others 1).")
 @click.option("--max-components", default=12, show_default=True, type=click.IntRange(min=1),
               help="GSF: largest number of Gaussian-mixture components (KL merging).")
 @click.option("--workers", default=None, type=int,

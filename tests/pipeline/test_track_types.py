@@ -2,8 +2,8 @@
 
 A small sample (3 events at ν = 7.6, ~700 candidates, ~150 of them VELO-only);
 `benchmarks/fit_quality.py` measures the same on 60 events. Before issue 15 the chi2 table
-had no ``track_type``, and the reference fitter failed 38 % and the GX2F 66 % of the real
-VELO-only tracks ("extrapolation failed": seeds with the least-squares q/p of a VELO track,
+had no ``track_type``, the parametrized fitter refused 9 % of the real long tracks (p below its
+table's p_min), and the reference fitter failed 38 % and the GX2F 66 % of the real VELO-only tracks ("extrapolation failed": seeds with the least-squares q/p of a VELO track,
 ±1/(100 MeV) of noise, stopped in the material).
 """
 
@@ -12,7 +12,7 @@ import pyarrow.dataset as ds
 import pytest
 
 from pkf.cli import main
-from pkf.fit.seed import VELO_PT_ASSUMED
+from pkf.fit.seed import VELO_PT_ASSUMED, VELO_QOP_PRIOR_SCALE
 from pkf.io.reader import read_table
 from pkf.io.schemas import CHI2, STATES
 
@@ -56,8 +56,6 @@ def test_every_fitter_fits_real_tracks_of_every_type(run):
     for fitter in FITTERS:
         for track_type in ("long", "velo"):
             sel = real & (chi2["fitter"] == fitter) & (chi2["track_type"] == track_type)
-            if fitter == "parametrized" and track_type == "long":
-                continue  # p_min: deliverable 1, tested in tests/fit
             assert sel.sum() > 100
             ok = chi2["status"][sel] == "ok"
             assert ok.mean() >= 0.995, (fitter, track_type, ok.mean(), set(chi2["status"][sel][~ok]))
@@ -66,7 +64,7 @@ def test_every_fitter_fits_real_tracks_of_every_type(run):
 def test_velo_only_qop_is_the_momentum_assumption(run):
     """VELO-only tracks: |q/p| stays near the assumption 1/p_assumed (p_assumed = pT_assumed/sin θ)
     with about the prior's error, for every fitter; their χ²/ndf is not the 0.2–0.3 of an
-    unphysical scattering noise."""
+    unphysical scattering noise (before: median q/p·p_assumed ≈ 0.02–20, σ(q/p) ≈ 1/(100 MeV))."""
     chi2 = _columns(read_table(run, CHI2, name="chi2"))
     states = _columns(read_table(run, STATES, name="states"))
     key = lambda e, t: e * (1 << 32) + t  # noqa: E731
@@ -81,5 +79,6 @@ def test_velo_only_qop_is_the_momentum_assumption(run):
         sigma = np.sqrt(states["c44"][rows])
         ratio = qop * p_assumed
         assert 0.5 < np.median(ratio) < 2.0, fitter
-        assert 0.5 < np.median(sigma * p_assumed) < 1.5, fitter
+        if fitter != "gsf":  # the GSF writes its mode component's covariance (issue 15, deliverable 4)
+            assert 0.5 * VELO_QOP_PRIOR_SCALE < np.median(sigma * p_assumed) < 1.1 * VELO_QOP_PRIOR_SCALE, fitter
         assert np.median(chi2["chi2_ndf"][sel & ~chi2["is_ghost"]]) > 0.5, fitter
