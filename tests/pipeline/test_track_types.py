@@ -82,3 +82,35 @@ def test_velo_only_qop_is_the_momentum_assumption(run):
         if fitter != "gsf":  # the GSF writes its mode component's covariance (issue 15, deliverable 4)
             assert 0.5 * VELO_QOP_PRIOR_SCALE < np.median(sigma * p_assumed) < 1.1 * VELO_QOP_PRIOR_SCALE, fitter
         assert np.median(chi2["chi2_ndf"][sel & ~chi2["is_ghost"]]) > 0.5, fitter
+
+
+@pytest.fixture(scope="module")
+def truth_run(tmp_path_factory):
+    """Ideal pattern recognition: the upstream (VELO + UT) tracks the triplet pattern does not
+    make (yet) are there."""
+    base = tmp_path_factory.mktemp("types_truth")
+    data = base / "minbias"
+    assert main(["simulate", "--out", str(data), "--events", "5", "--pileup", "7.6", "--seed", "31"]) == 0
+    out = base / "run"
+    assert main(["reconstruct", str(data), "--out", str(out), "--workers", "1", "--pattern", "truth",
+                 "--fitter", "parametrized", "--fitter", "reference"]) == 0
+    return out
+
+
+def test_upstream_qop_error_is_the_hits_not_a_narrow_prior(truth_run):
+    """Upstream tracks measure q/p to ~15 % from the field before the UT; with a 10 % seed prior
+    centred on the hits' own estimate their q/p pull core was 2.0 (both Kalman fitters)."""
+    from pkf.io.schemas import PULLS
+    from pkf.params.gauss import gaussian_core
+
+    chi2 = _columns(read_table(truth_run, CHI2, name="chi2"))
+    pulls = _columns(read_table(truth_run, PULLS, name="pulls"))
+    key = lambda e, t: e * (1 << 32) + t  # noqa: E731
+    for fitter in ("parametrized", "reference"):
+        sel = (chi2["fitter"] == fitter) & (chi2["track_type"] == "upstream") & (chi2["status"] == "ok")
+        assert sel.sum() > 100
+        rows = ((pulls["fitter"] == fitter) & (pulls["location"] == "first_hit")
+                & np.isin(key(pulls["event_id"], pulls["track_id"]), key(chi2["event_id"][sel], chi2["track_id"][sel])))
+        width = gaussian_core(pulls["pull_qop"][rows]).sigma
+        assert 0.8 < width < 1.25, (fitter, width)
+        assert 0.85 < np.mean(chi2["chi2_ndf"][sel]) < 1.2, fitter

@@ -244,7 +244,7 @@ def _chi2(node_state, n, n_meas, hx, hy, m, sigma, active, theta, theta0, n_slot
 @nb.njit(cache=True)
 def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta0, step_plane,
            gain, offset, s_inv, d_alpha, d_theta, node_cov, info, vec, yg, tmp, tmp2, tmp3, lu, spd_vec,
-           qop_weight, qop_prior):
+           qop_weight=0.0, qop_prior=0.0):
     """One Gauss–Newton step (see the module docstring). Writes δα, δθ and the posterior
     covariance of every node's state; returns False if the reduced normal matrix at the
     first node is not positive definite. qop_weight [MeV²] > 0 adds the Gaussian prior

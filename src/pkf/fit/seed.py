@@ -18,8 +18,10 @@ orders of magnitude for long tracks, widened by the least-squares q/p variance f
 tracks whose hits hardly measure q/p.
 
 Track types (`track_type_codes`, the ``track_type`` column of the chi2 table): ``long``
-(SciFi hits), ``upstream`` (VELO + UT: q/p from the small field integral before the UT,
-as the least-squares fit above measures it) and ``velo`` (VELO hits only). In a detector
+(SciFi hits), ``upstream`` (VELO + UT: q/p from the small field integral before the UT, to
+~15 %; their seed's q/p prior is 100 % wide, UPSTREAM_QOP_FRACTION, so that the fit's q/p
+error is the hits' and not a 10 % prior centred on their own estimate) and ``velo`` (VELO
+hits only). In a detector
 without UT and SciFi (the ``telescope``) every track spans the whole detector: ``long``.
 
 VELO-only tracks: the few mT of the VELO give no usable momentum (the least-squares q/p
@@ -61,6 +63,8 @@ VELO_PT_ASSUMED = 200.0
 VELO_QOP_PRIOR_SCALE = 3.0
 #: Largest momentum [MeV] the VELO-only assumption may give (tracks along the beam).
 VELO_P_ASSUMED_MAX = 50000.0
+#: σ(q/p)/|q/p| of the seed prior of upstream (VELO + UT) tracks, instead of SEED_QOP_FRACTION.
+UPSTREAM_QOP_FRACTION = 1.0
 
 
 @nb.njit(cache=True)
@@ -203,7 +207,8 @@ def velo_qop_prior(state, cov):
 def seed_tracks(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma,
                 field_kind, field_params, field_grid, out_states, out_covs, out_qop_var, track_type):
     """`seed_track` for every track of a CSR batch; VELO-only tracks (track_type ==
-    TRACK_VELO) get the momentum assumption (`velo_qop_prior`)."""
+    TRACK_VELO) get the momentum assumption (`velo_qop_prior`), upstream tracks a q/p prior
+    of UPSTREAM_QOP_FRACTION·|q/p| (their hits measure q/p to ~15 %)."""
     for t in range(offsets.size - 1):
         lo = offsets[t]
         hi = offsets[t + 1]
@@ -212,3 +217,7 @@ def seed_tracks(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sig
                                     field_grid, out_states[t], out_covs[t])
         if track_type[t] == TRACK_VELO and math.isfinite(out_qop_var[t]):
             velo_qop_prior(out_states[t], out_covs[t])
+        elif track_type[t] == TRACK_UPSTREAM and math.isfinite(out_qop_var[t]):
+            # the hits measure q/p to ~15 % only: a 10 % prior centred on their own estimate
+            # would count them twice (Kalman q/p pulls 2.0, the prior-free GX2F's 0.99)
+            out_covs[t, 4, 4] = (UPSTREAM_QOP_FRACTION * out_states[t, 4]) ** 2 + out_qop_var[t]
