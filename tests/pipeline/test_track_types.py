@@ -8,7 +8,6 @@ table's p_min), and the reference fitter failed 38 % and the GX2F 66 % of the re
 """
 
 import numpy as np
-import pyarrow.dataset as ds
 import pytest
 
 from pkf.cli import main
