@@ -74,7 +74,7 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--max-outliers", default=2, show_default=True, type=int, help="At most this many removals per track.")
 @click.option("--iterations", default=None, type=click.IntRange(min=1),
               help="Kalman fitters: passes; later ones linearise around the previous fit. "
-                   "Default: each fitter's own (reference 2, the others 1).")
+                   "Default: each fitter's own (reference and parametrized 2, the others 1).")
 @click.option("--smoother", default="weighted-mean", show_default=True, type=click.Choice(SMOOTHERS[:2]),
               help="Kalman fitters: combine the forward and backward filters by their weighted mean, "
                    "or run the Rauch–Tung–Striebel smoother (the same states).")

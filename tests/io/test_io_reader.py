@@ -37,7 +37,8 @@ def _run_tables(n_tracks: int = 5) -> dict[str, pa.Table]:
     ev = np.repeat([0, 1], [3, n_tracks - 3]).astype(np.int64)
     tid = np.array([0, 1, 2] + list(range(n_tracks - 3)), dtype=np.int64)
     chi2 = table_from_columns(CHI2, {
-        "event_id": ev, "track_id": tid, "fitter": "parametrized", "n_velo": np.full(n_tracks, 10),
+        "event_id": ev, "track_id": tid, "fitter": "parametrized", "track_type": "long",
+        "n_velo": np.full(n_tracks, 10),
         "n_ut": 4, "n_scifi": 12, "n_outliers": 0, "chi2": rng.random(n_tracks) * 30, "ndf": 29,
         "chi2_ndf": np.append(rng.random(n_tracks - 1), np.nan), "status": ["ok"] * (n_tracks - 1) + ["too few hits"],
         "mc_particle_id": np.arange(n_tracks) - 1, "match_fraction": rng.random(n_tracks),

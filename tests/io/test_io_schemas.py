@@ -76,6 +76,7 @@ def test_run_schemas():
         ("event_id", I64, False),
         ("track_id", I64, False),
         ("fitter", STR, False),
+        ("track_type", STR, False),
         ("n_velo", I16, False),
         ("n_ut", I16, False),
         ("n_scifi", I16, False),

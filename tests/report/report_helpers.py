@@ -40,7 +40,8 @@ def write_synthetic_run(
         ok = status == "ok"
         chi2_ndf = np.where(ok, chi2_ndf, np.nan)
         chi2_parts.append(table_from_columns(CHI2, {
-            "event_id": event, "track_id": track, "fitter": fitter, "n_velo": 5, "n_ut": 3, "n_scifi": 12,
+            "event_id": event, "track_id": track, "fitter": fitter, "track_type": "long", "n_velo": 5,
+            "n_ut": 3, "n_scifi": 12,
             "n_outliers": 0, "chi2": chi2_ndf * 20, "ndf": 20, "chi2_ndf": chi2_ndf, "status": status,
             "mc_particle_id": mc, "match_fraction": np.where(ghost, 0.5, 1.0), "is_ghost": ghost}))
         p_true = np.exp(rng.uniform(np.log(1500.0), np.log(120000.0), n_tracks))

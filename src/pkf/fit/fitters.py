@@ -45,9 +45,18 @@ class Fitter:
 #: first-hit q/p moves from 1.0–1.06σ RMS (max 15–21σ) to 0.02–0.05σ RMS from the GX2F's
 #: χ² minimum, the δp/p core at 2–2.5 GeV narrows from 0.27 % to 0.17–0.18 %, and the q/p
 #: pull core from 1.15–1.17 to 1.01–1.05; a third pass changes nothing (≤ 0.03σ). Cost:
-#: ×1.7–2.1 the reference fit's time (½ of the GX2F's). The parametrized fitter keeps 1
-#: pass: 2 cost it ×1.7 and move its δp/p cores by ≤ 0.02 percentage points.
+#: ×1.7–2.1 the reference fit's time (½ of the GX2F's).
 REFERENCE_ITERATIONS = 2
+
+#: Passes of the parametrized fitter by default, for the same reason. With one pass its q/p
+#: pulls were too wide wherever the seed's q/p is far from the fit's: measured on 15 minimum-
+#: bias events at ν = 7.6 (triplet pattern, 3,208 real long tracks, `benchmarks/fit_quality.py`),
+#: first-hit q/p pull core 1 → 2 passes: 1.33 → 1.01 at 1.5–3 GeV, 1.10 → 1.04 at 3–5, 1.04 →
+#: 1.03 at 5–10, 1.01 → 1.00 at 10–100 GeV; δp/p core 0.283 → 0.203 % at 1.5–3 GeV (reference
+#: 0.191 %), 0.237 → 0.217 % at 3–5 GeV (reference 0.219 %). On a 1.5–2.6 GeV π gun (341 long
+#: tracks): q/p pull 1.63 → 1.02, δp/p 0.295 → 0.207 % (reference 0.176 %). Cost: ×1.5–1.7 the
+#: parametrized fit's time.
+PARAMETRIZED_ITERATIONS = 2
 
 
 def _reference(geometry: Geometry, params=None):
@@ -67,7 +76,7 @@ def _gsf(geometry: Geometry, params=None):
 FITTER_NAMES = ("parametrized", "reference", "gx2f", "gsf")
 _NOT_BUILT: dict[str, int] = {}
 _BUILT = {
-    "parametrized": Fitter("parametrized", _parametrized, qop_at_production=True),
+    "parametrized": Fitter("parametrized", _parametrized, qop_at_production=True, iterations=PARAMETRIZED_ITERATIONS),
     "reference": Fitter("reference", _reference, qop_at_production=False, iterations=REFERENCE_ITERATIONS),
     "gx2f": Fitter("gx2f", _reference, qop_at_production=False, fit=fit_batch_gx2f),
     "gsf": Fitter("gsf", _gsf, qop_at_production=False, fit=fit_batch_gsf),

@@ -85,6 +85,7 @@ from pkf.fit.propagate import (
     rk4_segment,
     scattering_width,
 )
+from pkf.fit.seed import TRACK_VELO
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 
@@ -243,10 +244,12 @@ def _chi2(node_state, n, n_meas, hx, hy, m, sigma, active, theta, theta0, n_slot
 
 @nb.njit(cache=True)
 def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta0, step_plane,
-           gain, offset, s_inv, d_alpha, d_theta, node_cov, info, vec, yg, tmp, tmp2, tmp3, lu, spd_vec):
+           gain, offset, s_inv, d_alpha, d_theta, node_cov, info, vec, yg, tmp, tmp2, tmp3, lu, spd_vec,
+           qop_weight=0.0, qop_prior=0.0):
     """One Gauss–Newton step (see the module docstring). Writes δα, δθ and the posterior
     covariance of every node's state; returns False if the reduced normal matrix at the
-    first node is not positive definite."""
+    first node is not positive definite. qop_weight [MeV²] > 0 adds the Gaussian prior
+    qop_weight·(q/p − qop_prior)² on the first node's q/p (VELO-only tracks)."""
     for i in range(5):
         vec[i] = 0.0
         for j in range(5):
@@ -301,6 +304,8 @@ def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta
             symmetrise(info)
         # transport to node k−1: Y ← FᵀYF, y ← Fᵀy
         transport_information(jac[k], info, vec, info, tmp, tmp2[0])
+    info[4, 4] += qop_weight
+    vec[4] += qop_weight * (qop_prior - node_state[0, 4])
     if not invert_spd(info, node_cov[0], lu, spd_vec):
         return False
     for i in range(5):
@@ -399,11 +404,18 @@ class Gx2fFitter(NamedTuple):
     lu: np.ndarray
     spd_vec: np.ndarray
     seg: np.ndarray
+    qop_weight: np.ndarray
+    qop_prior: np.ndarray
 
 
 def gx2f_fitter(ext, n_nodes: int, n_tracks: int, max_updates: int = MAX_UPDATES,
-                relative_chi2_change: float = RELATIVE_CHI2_CHANGE) -> Gx2fFitter:
-    """The GX2F of reference context `ext` for `n_tracks` tracks of up to `n_nodes` nodes."""
+                relative_chi2_change: float = RELATIVE_CHI2_CHANGE, qop_weight: np.ndarray | None = None,
+                qop_prior: np.ndarray | None = None) -> Gx2fFitter:
+    """The GX2F of reference context `ext` for `n_tracks` tracks of up to `n_nodes` nodes;
+    qop_weight/qop_prior (T): each track's q/p prior (weight 0: none, `_solve`)."""
+    if qop_weight is None or qop_prior is None:
+        qop_weight = np.zeros(n_tracks)
+        qop_prior = np.zeros(n_tracks)
     slots = ext.plane_z.size + 1
     return Gx2fFitter(
         ext, int(max_updates), float(relative_chi2_change), False, np.zeros(n_tracks, dtype=np.int64),
@@ -412,7 +424,8 @@ def gx2f_fitter(ext, n_nodes: int, n_tracks: int, max_updates: int = MAX_UPDATES
         np.zeros((slots, 5, 2)), np.zeros((slots, 2)), np.zeros(slots), np.empty((slots, 2, 5)),
         np.empty((slots, 2)), np.empty((slots, 2, 2)), np.zeros((slots, 2)), np.empty(5), np.empty(5),
         np.empty((5, 5)), np.empty(5), np.empty((5, 2)), np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5)),
-        np.empty((5, 5)), np.empty(10), np.empty((5, 5)))
+        np.empty((5, 5)), np.empty(10), np.empty((5, 5)),
+        np.ascontiguousarray(qop_weight, dtype=np.float64), np.ascontiguousarray(qop_prior, dtype=np.float64))
 
 
 @nb.njit(cache=True)
@@ -443,12 +456,13 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
         return status, chi2
     n_slots = f.step_plane[n] if n > 1 else 0
     chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
+    chi2 += f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
     updates = 0
     converged = False
     while True:
         if not _solve(n, n_meas, hx, hy, m, sigma, active, f.node_state, f.jac, f.g, f.theta, f.theta0,
                       f.step_plane, f.gain, f.offset, f.s_inv, f.d_alpha, f.d_theta, out_cov, f.info, f.vec, f.yg,
-                      f.tmp, f.tmp2, f.tmp3, f.lu, f.spd_vec):
+                      f.tmp, f.tmp2, f.tmp3, f.lu, f.spd_vec, f.qop_weight[t], f.qop_prior[t]):
             status = STATUS_NOT_POSITIVE_DEFINITE
             break
         if converged or updates == f.max_updates:
@@ -466,6 +480,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
         if f.step_plane[n] != n_slots:  # (cannot happen: the plane range is fixed by z)
             n_slots = f.step_plane[n]
         new_chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
+        new_chi2 += f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
         if abs(new_chi2 - chi2) <= f.relative_chi2_change * new_chi2:
             converged = True
         chi2 = new_chi2
@@ -499,12 +514,18 @@ def fit_batch_gx2f(extrapolator, batch, options, seeds: np.ndarray, seed_covs: n
     """GX2F of every track of `batch` (a `TrackBatch`) with the reference extrapolator
     context `extrapolator` (`pkf.fit.reference.reference_extrapolator`), starting from
     `seeds` (T, 5) at the first nodes. `options` (`FitOptions`): the outlier cut,
-    maximum number of outliers and the Gauss–Newton options `options.gx2f`. seed_covs is accepted
-    for the common fit signature and unused: the GX2F needs no prior covariance. With
-    `track_states`, `result.track_states` holds the node states as "smoothed" only: a
-    global fit has no predicted or filtered state (as ACTS's GX2F)."""
+    maximum number of outliers and the Gauss–Newton options `options.gx2f`. The GX2F needs
+    no prior covariance, except on the q/p of VELO-only tracks (``batch.track_type``), which
+    the hits do not measure: there the seed's q/p and its variance from seed_covs are a
+    Gaussian prior (the momentum assumption of `pkf.fit.seed`). With `track_states`,
+    `result.track_states` holds the node states as "smoothed" only: a global fit has no
+    predicted or filtered state (as ACTS's GX2F)."""
+    qop_weight = np.zeros(batch.n_tracks)
+    if batch.track_type is not None and seed_covs is not None:
+        velo = batch.track_type == TRACK_VELO
+        qop_weight[velo] = 1.0 / seed_covs[velo, 4, 4]
     fitter = gx2f_fitter(extrapolator, max_nodes(batch.offsets), batch.n_tracks, options.gx2f.max_updates,
-                         options.gx2f.relative_chi2_change)
+                         options.gx2f.relative_chi2_change, qop_weight, np.ascontiguousarray(seeds[:, 4]))
     result = GX2FResult.empty(batch, iterations=fitter.out_iterations, converged=fitter.out_converged)
     run_fitter(fitter, batch, options, seeds, np.zeros((batch.n_tracks, 5, 5)), result)
     fit_locations(result, batch, beamline_extrapolator)

@@ -16,6 +16,22 @@ diag(100 mm², 100 mm², 0.01, 0.01, (0.1·q/p)² + σ²_LSQ(q/p)) — loose in 
 slope (the first measurements fix them), a 10% q/p prior, which the data outweigh by two
 orders of magnitude for long tracks, widened by the least-squares q/p variance for
 tracks whose hits hardly measure q/p.
+
+Track types (`track_type_codes`, the ``track_type`` column of the chi2 table): ``long``
+(SciFi hits), ``upstream`` (VELO + UT: q/p from the small field integral before the UT, to
+~15 %; their seed's q/p prior is 100 % wide, UPSTREAM_QOP_FRACTION, so that the fit's q/p
+error is the hits' and not a 10 % prior centred on their own estimate) and ``velo`` (VELO
+hits only). In a detector
+without UT and SciFi (the ``telescope``) every track spans the whole detector: ``long``.
+
+VELO-only tracks: the few mT of the VELO give no usable momentum (the least-squares q/p
+of a 1–10 GeV track is noise of ±1/(100 MeV) and once made the fits stop in the material
+at 4 MeV). Their seed q/p is the momentum *assumption* of `velo_qop_prior`: |q/p| =
+1/p_assumed with p_assumed = VELO_PT_ASSUMED·√(1+tx²+ty²)/√(tx²+ty²) (a fixed transverse
+momentum, the typical pT of the tracks that stay in the VELO), the sign of the
+least-squares estimate, and the variance (VELO_QOP_PRIOR_SCALE/p_assumed)². Every fitter
+computes the scattering noise at that q/p (through the state) and returns it, with about
+that variance, as the track's q/p: the prior, not a measurement.
 """
 
 from __future__ import annotations
@@ -26,6 +42,7 @@ import numba as nb
 import numpy as np
 
 from pkf.physics.linalg import invert_spd
+from pkf.geometry.detector import SUBDETECTORS
 from pkf.geometry.field import field_at
 from pkf.physics.transport import C_LIGHT
 
@@ -33,6 +50,21 @@ SEED_STEP = 50.0  # mm, integration step of the kick integrals
 QOP_PRIOR_SIGMA = 1.0 / 100.0  # 1/MeV
 SEED_VARIANCES = (100.0, 100.0, 0.01, 0.01)
 SEED_QOP_FRACTION = 0.1
+
+#: Track type codes (`track_type_codes`) and their names in the chi2 table.
+TRACK_LONG = 0
+TRACK_UPSTREAM = 1
+TRACK_VELO = 2
+TRACK_TYPE_NAMES = ("long", "upstream", "velo")
+
+#: Transverse momentum [MeV] assumed for VELO-only tracks (scattering noise; see the module docstring).
+VELO_PT_ASSUMED = 200.0
+#: σ(q/p) of the VELO-only prior in units of the assumed 1/p.
+VELO_QOP_PRIOR_SCALE = 3.0
+#: Largest momentum [MeV] the VELO-only assumption may give (tracks along the beam).
+VELO_P_ASSUMED_MAX = 50000.0
+#: σ(q/p)/|q/p| of the seed prior of upstream (VELO + UT) tracks, instead of SEED_QOP_FRACTION.
+UPSTREAM_QOP_FRACTION = 1.0
 
 
 @nb.njit(cache=True)
@@ -135,13 +167,57 @@ def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid
     return inv[4, 4]
 
 
+def track_type_codes(geometry, offsets: np.ndarray, node_layer: np.ndarray) -> np.ndarray:
+    """Type (TRACK_*) of each track of a CSR batch from the subdetectors of its nodes' layers:
+    long with a SciFi hit, upstream with a UT hit, else velo; every track is long in a
+    geometry without UT and SciFi layers."""
+    n_tracks = offsets.size - 1
+    sub = geometry.layer_subdetector
+    has_ut = np.any(sub == SUBDETECTORS.index("ut"))
+    has_scifi = np.any(sub == SUBDETECTORS.index("scifi"))
+    if not (has_ut or has_scifi):
+        return np.full(n_tracks, TRACK_LONG, dtype=np.int64)
+    track_of_node = np.repeat(np.arange(n_tracks), np.diff(offsets))
+    node_sub = sub[node_layer]
+    n_ut = np.bincount(track_of_node[node_sub == SUBDETECTORS.index("ut")], minlength=n_tracks)
+    n_scifi = np.bincount(track_of_node[node_sub == SUBDETECTORS.index("scifi")], minlength=n_tracks)
+    return np.where(n_scifi > 0, TRACK_LONG, np.where(n_ut > 0, TRACK_UPSTREAM, TRACK_VELO)).astype(np.int64)
+
+
+@nb.njit(cache=True)
+def velo_qop_prior(state, cov):
+    """Replace the q/p of a VELO-only seed (state at the first hit, cov 5×5) by the momentum
+    assumption of the module docstring: |q/p| = 1/p_assumed with the estimate's sign,
+    variance (VELO_QOP_PRIOR_SCALE·q/p)², no correlations."""
+    t2 = state[2] * state[2] + state[3] * state[3]
+    p_assumed = VELO_P_ASSUMED_MAX
+    if t2 > 0.0:
+        p_assumed = min(VELO_P_ASSUMED_MAX, VELO_PT_ASSUMED * math.sqrt((1.0 + t2) / t2))
+    qop = 1.0 / p_assumed
+    if state[4] < 0.0:
+        qop = -qop
+    state[4] = qop
+    for i in range(5):
+        cov[i, 4] = 0.0
+        cov[4, i] = 0.0
+    cov[4, 4] = (VELO_QOP_PRIOR_SCALE * qop) ** 2
+
+
 @nb.njit(cache=True)
 def seed_tracks(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma,
-                field_kind, field_params, field_grid, out_states, out_covs, out_qop_var):
-    """`seed_track` for every track of a CSR batch."""
+                field_kind, field_params, field_grid, out_states, out_covs, out_qop_var, track_type):
+    """`seed_track` for every track of a CSR batch; VELO-only tracks (track_type ==
+    TRACK_VELO) get the momentum assumption (`velo_qop_prior`), upstream tracks a q/p prior
+    of UPSTREAM_QOP_FRACTION·|q/p| (their hits measure q/p to ~15 %)."""
     for t in range(offsets.size - 1):
         lo = offsets[t]
         hi = offsets[t + 1]
         out_qop_var[t] = seed_track(node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi],
                                     node_m[lo:hi], node_sigma[lo:hi], field_kind, field_params,
                                     field_grid, out_states[t], out_covs[t])
+        if track_type[t] == TRACK_VELO and math.isfinite(out_qop_var[t]):
+            velo_qop_prior(out_states[t], out_covs[t])
+        elif track_type[t] == TRACK_UPSTREAM and math.isfinite(out_qop_var[t]):
+            # the hits measure q/p to ~15 % only: a 10 % prior centred on their own estimate
+            # would count them twice (Kalman q/p pulls 2.0, the prior-free GX2F's 0.99)
+            out_covs[t, 4, 4] = (UPSTREAM_QOP_FRACTION * out_states[t, 4]) ** 2 + out_qop_var[t]

@@ -21,7 +21,7 @@ from pkf.fit.driver import fit_tracks, max_nodes
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
-from pkf.fit.seed import seed_tracks
+from pkf.fit.seed import TRACK_LONG, seed_tracks, track_type_codes
 from pkf.geometry.detector import KIND_PIXEL, Geometry
 
 
@@ -31,7 +31,8 @@ class TrackBatch:
 
     offsets (T+1); per node: z [mm], layer, hit_row (row in the hits table), n_meas
     (1 strip, 2 pixel), hx/hy (n, 2) measurement directions, m (n, 2) measured values
-    [mm], sigma (n, 2) errors [mm].
+    [mm], sigma (n, 2) errors [mm]; per track its type (`pkf.fit.seed.TRACK_*`; None:
+    every track long).
     """
 
     offsets: np.ndarray
@@ -43,6 +44,7 @@ class TrackBatch:
     hy: np.ndarray
     m: np.ndarray
     sigma: np.ndarray
+    track_type: np.ndarray | None = None
 
     @property
     def n_tracks(self) -> int:
@@ -79,7 +81,8 @@ class TrackBatch:
         m[pixel, 1] = v[hit_row][pixel]
         sigma[pixel, 1] = sigma_v[hit_row][pixel]
         return cls(offsets, geometry.layer_z[layer_of].copy(), layer_of, hit_row,
-                   np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma)
+                   np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma,
+                   track_type_codes(geometry, offsets, layer_of))
 
 
 #: The Kalman core's code of each `KalmanOptions.smoother` name.
@@ -192,12 +195,18 @@ class FitResult:
 
 
 def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Seed states (T, 5) at each track's first node, seed covariances and q/p variances."""
+    """Seed states (T, 5) at each track's first node, seed covariances and q/p variances.
+
+    VELO-only tracks (``batch.track_type``) get the momentum assumption of
+    `pkf.fit.seed.velo_qop_prior`."""
     seeds = np.empty((batch.n_tracks, 5))
     covs = np.empty((batch.n_tracks, 5, 5))
     qop_var = np.empty(batch.n_tracks)
+    track_type = batch.track_type
+    if track_type is None:
+        track_type = np.full(batch.n_tracks, TRACK_LONG, dtype=np.int64)
     seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-                *field.args, seeds, covs, qop_var)
+                *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64))
     return seeds, covs, qop_var
 
 

@@ -146,13 +146,15 @@ MC_HITS = _schema(
 )
 
 #: ``chi2``: one row per (event, track, fitter). status is ``ok`` or why the fit
-#: failed (then chi2/chi2_ndf are NaN); mc_particle_id is -1 if unmatched or no MC.
+#: failed (then chi2/chi2_ndf are NaN); mc_particle_id is -1 if unmatched or no MC;
+#: track_type is ``long``, ``upstream`` (VELO+UT) or ``velo`` (`pkf.fit.seed.track_type_codes`).
 CHI2 = _schema(
     "chi2",
     [
         _field("event_id", _I64),
         _field("track_id", _I64),
         _field("fitter", _STR),
+        _field("track_type", _STR),
         _field("n_velo", _I16),
         _field("n_ut", _I16),
         _field("n_scifi", _I16),

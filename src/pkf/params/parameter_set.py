@@ -94,10 +94,12 @@ class ParameterSet:
             meta, coef = self.ut_to_scifi.as_arrays()
         else:
             meta, coef = np.zeros(META_SIZE), np.zeros((4, 1, 1, 1))
+        field = geometry.reconstruction_field() if self.ut_to_scifi is not None else None
+        fallback = (int(field.kind), field.params, field.grid) if field is not None else ()
         return ParametrizedExtrapolator(
             geometry.layer_z.astype(np.float64), slots.layer_sub, slots.sub_first, slots.sub_last,
             slots.within_type, slots.between_type, np.ascontiguousarray(self.extrapolation, dtype=np.float64),
-            np.ascontiguousarray(self.noise, dtype=np.float64), meta, coef,
+            np.ascontiguousarray(self.noise, dtype=np.float64), meta, coef, *fallback,
         )
 
     def check_geometry(self, geometry: Geometry, source: str) -> None:

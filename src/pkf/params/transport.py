@@ -28,6 +28,7 @@ Units: mm, 1/MeV.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numba as nb
@@ -36,10 +37,14 @@ import numpy as np
 from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
 from pkf.physics.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
+from pkf.physics.transport import rk4_propagate_jacobian
 
 TRANSPORT_OK = 0
 TRANSPORT_FAILED = 2  # an unphysical step (|tx/N| ≥ 1 after the VELO→UT kink, NaN), a bad table
-TRANSPORT_BELOW_P_MIN = 4  # the UT→SciFi table evaluated beyond its p_min (|w| > 1)
+TRANSPORT_BELOW_P_MIN = 4  # the UT→SciFi table evaluated beyond its p_min (|w| > 1), without fallback
+
+#: RK4 step [mm] of the UT→SciFi fallback below the table's p_min (the reference fitter's step).
+FALLBACK_MAX_STEP = 100.0
 
 STEP_NONE = -1
 STEP_VELO = 0
@@ -57,7 +62,10 @@ class ParametrizedExtrapolator(NamedTuple):
     layer_z (L) [mm]; layer_sub (L) subdetector index; sub_first/sub_last (S) first and
     last layer of each subdetector (−1 if absent); within_type/between_type (S) the step
     type inside the subdetector and for leaving it (STEP_*); extrapolation (L, 9) and
-    noise (L, 6) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays.
+    noise (L, 6) parameters per slot; uts_meta/uts_coef the UT→SciFi table arrays;
+    field_kind/field_params/field_grid the field map of the UT→SciFi fallback below the
+    table's p_min (`_apply`; field_kind < 0: no fallback, such steps return
+    TRANSPORT_BELOW_P_MIN).
     """
 
     layer_z: np.ndarray
@@ -70,6 +78,9 @@ class ParametrizedExtrapolator(NamedTuple):
     noise: np.ndarray
     uts_meta: np.ndarray
     uts_coef: np.ndarray
+    field_kind: int = -1
+    field_params: np.ndarray = np.zeros(1)
+    field_grid: np.ndarray = np.zeros((1, 1, 1, 3))
 
 
 @nb.njit(cache=True, inline="always")
@@ -80,9 +91,27 @@ def _layer_of(layer_z, z):
     return -1
 
 
+@nb.njit(cache=True)
+def _rk4_fallback(field_kind, field_params, field_grid, state, z0, z1, seg_state, seg_jac):
+    """The UT→SciFi step by RK4 (with its Jacobian) through the field map, for states below
+    the table's p_min: seg_state ← state transported from z0 to z1 [mm]. TRANSPORT_FAILED if
+    the track leaves the envelope (|tx|, |ty| > 10 or not finite: it curls in the magnet)."""
+    out = rk4_propagate_jacobian(state, z0, z1, FALLBACK_MAX_STEP, field_kind, field_params, field_grid, seg_jac)
+    for i in range(5):
+        if not math.isfinite(out[i]):
+            return TRANSPORT_FAILED
+        seg_state[i] = out[i]
+    if abs(out[2]) > 10.0 or abs(out[3]) > 10.0:
+        return TRANSPORT_FAILED
+    return TRANSPORT_OK
+
+
 @nb.njit(cache=True, inline="always")
-def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
-    """One paper step of `kind` with parameters `p`; returns a status."""
+def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac, field_kind, field_params,
+           field_grid):
+    """One paper step of `kind` with parameters `p`; returns a status. Below the UT→SciFi
+    table's p_min the step is RK4 through the field map (`_rk4_fallback`) when the context
+    has one (field_kind ≥ 0): the table's polynomials are not valid there."""
     if kind == STEP_VELO:
         velo_step(p, cur_state, z0, z1, seg_state, seg_jac)
     elif kind == STEP_VELO_TO_UT:
@@ -97,6 +126,10 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac):
         seg_state[:] = cur_state
         seg_state[4] = qop / shrink
         status = ut_to_scifi_extrapolate(uts_meta, uts_coef, seg_state, seg_state, seg_jac)
+        if status == TRANSPORT_BELOW_P_MIN and field_kind >= 0:
+            seg_state[:] = cur_state
+            seg_state[4] = qop / shrink
+            status = _rk4_fallback(field_kind, field_params, field_grid, seg_state, z0, z1, seg_state, seg_jac)
         if status != TRANSPORT_OK:
             return status  # TRANSPORT_BELOW_P_MIN, or TRANSPORT_FAILED for a bad table
         dqop = 1.0 / (shrink * shrink)
@@ -171,7 +204,8 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
     while cur < b:
         kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type, cur, b)
         status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
-                        layer_z[cur], layer_z[nxt], seg_state, seg_jac)
+                        layer_z[cur], layer_z[nxt], seg_state, seg_jac, ext.field_kind, ext.field_params,
+                        ext.field_grid)
         if status != TRANSPORT_OK:
             return status
         step_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_jac, seg_noise)

@@ -19,6 +19,7 @@ import pyarrow as pa
 from pkf.fit.beamline import straight_line_extrapolator
 from pkf.fit.extrapolator import STATUS_NAMES, STATUS_OK
 from pkf.fit.fitters import get_fitter
+from pkf.fit.seed import TRACK_LONG, TRACK_TYPE_NAMES
 from pkf.fit.tracks import TrackBatch, seed_batch
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.reader import Dataset
@@ -34,6 +35,8 @@ from pkf.io.schemas import (
     table_from_columns,
 )
 from pkf.params.parameter_set import load_parameters
+from pkf.params.transport import ParametrizedExtrapolator
+from pkf.params.ut_to_scifi import META_P_MIN
 from pkf.pipeline import triplet_pattern
 from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
 from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
@@ -251,6 +254,7 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         stats["tracks"] += n_tracks
         stats["nodes"] += int(batch.z.size)
         summary["tracks"][fitter.name] += int(np.sum(result.status == STATUS_OK))
+        summary.setdefault("below_p_min", {})[fitter.name] = _below_p_min(ext, batch, result)
         tables["chi2"].append(_chi2_table(fitter, geometry, batch, result, track_event, track_id,
                                           mc_particle, fraction, ghost))
         tables["states"].append(_states_table(fitter, result, track_event, track_id))
@@ -291,12 +295,24 @@ def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarra
     return out
 
 
+def _below_p_min(ext, batch: TrackBatch, result) -> int:
+    """Long tracks a parametrized fit extrapolated from the UT to the SciFi below its table's
+    p_min, by RK4 through the field map (`pkf.params.transport`): fitted |q/p| at the first hit
+    above 1/p_min. 0 for the other fitters."""
+    if not isinstance(ext, ParametrizedExtrapolator) or ext.uts_meta[META_P_MIN] <= 0.0:
+        return 0
+    qop = result.locations["first_hit"][1][:, 4]
+    fitted = (result.status == STATUS_OK) & (batch.track_type == TRACK_LONG)
+    return int(np.sum(fitted & (np.abs(qop) * ext.uts_meta[META_P_MIN] > 1.0)))
+
+
 def _chi2_table(fitter, geometry, batch, result, track_event, track_id, mc_particle, fraction, ghost):
     counts = _subdetector_counts(geometry, batch, result.node_active)
     ok = result.status == STATUS_OK
     ndf = result.ndf
     return table_from_columns(CHI2, {
         "event_id": track_event, "track_id": track_id, "fitter": fitter.name,
+        "track_type": np.array(TRACK_TYPE_NAMES, dtype=object)[batch.track_type],
         "n_velo": counts["velo"], "n_ut": counts["ut"], "n_scifi": counts["scifi"],
         "n_outliers": result.n_outliers, "chi2": result.chi2, "ndf": ndf,
         "chi2_ndf": np.where(ok & (ndf > 0), result.chi2 / np.maximum(ndf, 1), np.nan),

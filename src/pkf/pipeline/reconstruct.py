@@ -151,7 +151,7 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
     entries = [done[p.name] for p in plan.partitions]
     fitters = list(run_config["fitters"])
     counts = {"events": 0, "hits": 0, "candidates": 0, "tracks": {f: 0 for f in fitters},
-              "events_over_hit_limit": 0}
+              "below_p_min": {f: 0 for f in fitters}, "events_over_hit_limit": 0}
     crowded_ids: list = []
     timing: dict = {}
     fit = {f: {"wall_s": 0.0, "tracks": 0, "nodes": 0} for f in fitters}
@@ -165,6 +165,7 @@ def _run_json(plan: DatasetPlan, run_config: dict, done: dict, dataset_path: Pat
             crowded_ids += s["events_over_hit_limit"]["event_ids"]
         for f in fitters:
             counts["tracks"][f] += s["tracks"][f]
+            counts["below_p_min"][f] += s.get("below_p_min", {}).get(f, 0)
             for k in fit[f]:
                 fit[f][k] += s["fit"][f][k]
         for stage, t in s["timing"].items():
