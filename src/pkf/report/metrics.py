@@ -756,17 +756,24 @@ class EntryTracks:
                                 .select(list(_KAON_STATE_COLUMNS)))
 
     def first_hit(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The first-hit pull rows: columns (p_true, res_*, pull_*, dp_over_p) and track types."""
-        cols = {name: np.concatenate(parts) if parts else np.zeros(0) for name, parts in self.first.items()}
+        """The first-hit pull rows: columns (p_true, res_*, pull_*, dp_over_p) and track types.
+        Consumes the parts (one column's parts and its concatenation in memory at a time)."""
+        cols = {}
+        for name in list(self.first):
+            parts = self.first.pop(name)
+            cols[name] = np.concatenate(parts) if parts else np.zeros(0)
+            del parts
         types = np.asarray(TYPE_CODES, dtype=object)[cols.pop("type").astype(np.int64)]
         if not self.explicit_types and not self.spans_detector:  # e.g. the telescope: every track is long
             types[types != "unknown"] = "long"
         return cols, types
 
     def ok_tracks(self) -> tuple[np.ndarray, np.ndarray]:
-        """χ²/ndf and is_ghost of the ok tracks."""
-        return (np.concatenate(self.chi2_ndf) if self.chi2_ndf else np.zeros(0),
-                np.concatenate(self.ghost) if self.ghost else np.zeros(0, dtype=bool))
+        """χ²/ndf and is_ghost of the ok tracks (consumes the parts)."""
+        chi2_ndf = np.concatenate(self.chi2_ndf) if self.chi2_ndf else np.zeros(0)
+        ghost = np.concatenate(self.ghost) if self.ghost else np.zeros(0, dtype=bool)
+        self.chi2_ndf, self.ghost = [], []
+        return chi2_ndf, ghost
 
     def kaon_tables(self) -> tuple[pa.Table, pa.Table]:
         """(ok tracks matched to kaons, their beamline states)."""
@@ -839,6 +846,7 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         pulls = _section(not empty, note, location=PULL_LOCATION, track_type="long",
                          parameters={par: pull_summary(arrays.pulls[par]) for par in PULL_PARAMETERS},
                          by_type=by_type)
+        del first_all, first_types
 
     # χ²/ndf (Fig. 3)
     chi2_section = chi2_summary(chi2_ndf, ghost_ok, run.has_mc)
