@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 
+import numba
 import pytest
 
 from pkf.cli import main
@@ -60,8 +61,9 @@ def scheduler(tmp_path_factory):
     processes = []
     try:
         for i, command in enumerate(commands):
-            log = open(logs / f"{i}.log", "w")  # noqa: SIM115 - closed with the process
-            processes.append(subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
+            with open(logs / f"{i}.log", "w") as log:  # the process keeps its own descriptor
+                processes.append(subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
+                                                  start_new_session=True))
             if i == 0:
                 _wait_for_port(port, processes[0], logs / "0.log")
         with Client(address, timeout="10s", set_as_default=False) as client:
@@ -103,7 +105,8 @@ def test_cluster_run_is_identical_to_a_local_run(scheduler, minbias, tmp_path):
     cluster = tmp_path / "cluster"
     done = subprocess.run([sys.executable, "-m", "pkf.cli", "reconstruct", str(minbias), "--out", str(cluster),
                            "--scheduler", scheduler, "--events-per-batch", str(PER_PARTITION)],
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "NUMBA_CACHE_DIR": numba.config.CACHE_DIR})  # this process's kernels
     assert done.returncode == 0, done.stderr
     assert run_files(cluster) == run_files(local)
     assert len(run_files(cluster)) == 4 * EVENTS // PER_PARTITION

@@ -2,10 +2,12 @@
 processes), stay quiet when stderr is not a terminal, and do not change any output."""
 
 import io
+import os
 import re
 import subprocess
 import sys
 
+import numba
 import pytest
 
 from pkf.cli import main
@@ -39,11 +41,12 @@ def minbias(tmp_path_factory):
     return out
 
 
-@pytest.fixture
-def terminal(monkeypatch):
+def terminal(monkeypatch) -> FakeTerminal:
+    """stderr replaced by a terminal, redrawn at every update (called in the test body: pytest's
+    own capture replaces sys.stderr again between a fixture's setup and the test call)."""
     fake = FakeTerminal()
     monkeypatch.setattr(sys, "stderr", fake)
-    monkeypatch.setattr(progress, "MIN_INTERVAL_S", 0.0)  # draw every update
+    monkeypatch.setattr(progress, "MIN_INTERVAL_S", 0.0)
     return fake
 
 
@@ -53,19 +56,21 @@ def run_files(run) -> dict:
 
 def test_event_groups_are_whole_events_of_bounded_hits():
     events = [0, 0, 0, 1, 1, 2, 3, 3, 3, 3, 3, 4]
-    assert executor.event_groups(events, 4) == [(0, 3), (3, 5), (5, 6), (6, 11), (11, 12)]
-    assert executor.event_groups(events, 6) == [(0, 6), (6, 11), (11, 12)]
+    assert executor.event_groups(events, 4) == [(0, 3), (3, 6), (6, 11), (11, 12)]  # event 3 alone: 5 hits
+    assert executor.event_groups(events, 6) == [(0, 6), (6, 12)]
+    assert executor.event_groups(events, 1) == [(0, 3), (3, 5), (5, 6), (6, 11), (11, 12)]
     assert executor.event_groups(events, 100) == [(0, 12)]
     assert executor.event_groups([], 4) == []
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_bar_advances_within_partitions(minbias, tmp_path, terminal, workers):
+def test_bar_advances_within_partitions(minbias, tmp_path, monkeypatch, workers):
     """The bar is redrawn at counts between partition ends: in this process and with 2 worker processes."""
+    screen = terminal(monkeypatch)
     run = run_reconstruction(minbias, tmp_path / "run", ReconstructionConfig(), workers=workers,
                              events_per_batch=PER_PARTITION)
     assert len(run["partitions"]) == EVENTS // PER_PARTITION
-    counts = drawn_counts(terminal.getvalue(), EVENTS)
+    counts = drawn_counts(screen.getvalue(), EVENTS)
     assert counts[-1] == EVENTS and counts == sorted(counts)
     within = {c for c in counts if c % PER_PARTITION}
     assert len(within) >= 2, counts  # advanced more than once inside partitions
@@ -83,10 +88,11 @@ def test_groups_do_not_change_tables(minbias, tmp_path, monkeypatch):
     assert runs[1]["timing"]["fit"]["parametrized"]["nodes"] == runs[10**9]["timing"]["fit"]["parametrized"]["nodes"]
 
 
-def test_simulate_bar_advances_within_a_row_group(tmp_path, terminal, monkeypatch):
+def test_simulate_bar_advances_within_a_row_group(tmp_path, monkeypatch):
+    screen = terminal(monkeypatch)
     cfg = simulate.SimulationConfig(generator="gun", events=60, seed=3)
     simulate.run_simulation(cfg, tmp_path / "split")
-    counts = drawn_counts(terminal.getvalue(), 60)
+    counts = drawn_counts(screen.getvalue(), 60)
     assert {25, 50} <= set(counts) and counts[-1] == 60  # inside one row group of 60 events
     monkeypatch.setattr(simulate, "PROGRESS_EVENTS", simulate.EVENTS_PER_BATCH)
     simulate.run_simulation(cfg, tmp_path / "whole", progress=False)
@@ -98,7 +104,8 @@ def test_nothing_printed_when_stderr_is_not_a_terminal(minbias, tmp_path):
     """A pipe (a batch job's log, CI) gets no bar: simulate and reconstruct write nothing to stderr."""
     for args in (["simulate", "--out", str(tmp_path / "ds"), "--generator", "gun", "--events", "30"],
                  ["reconstruct", str(minbias), "--out", str(tmp_path / "run"), "--events-per-batch", "8"]):
-        done = subprocess.run([sys.executable, "-m", "pkf.cli", *args], capture_output=True, text=True, timeout=600)
+        done = subprocess.run([sys.executable, "-m", "pkf.cli", *args], capture_output=True, text=True, timeout=600,
+                              env={**os.environ, "NUMBA_CACHE_DIR": numba.config.CACHE_DIR})  # this process's kernels
         assert done.returncode == 0, done.stderr
         assert done.stderr == ""
         assert "wrote" in done.stdout
