@@ -75,9 +75,9 @@ def analyse(run_dir: Path) -> dict:
 
     per_fitter = {}
     for name in FITTERS:
-        chi2 = rows_of(run.chi2, name)
+        chi2 = rows_of(run.table("chi2"), name)
         chi2_ok = chi2.filter(np.array(chi2.column("status").to_pylist()) == "ok")
-        states = rows_of(run.states, name, "beamline")
+        states = rows_of(run.table("states"), name, "beamline")
         decays, rows = bs_kaon_state_rows(truth, chi2_ok, states)
         per_fitter[name] = {c: column(states, c)[rows] for c in ("qop", "tx", "ty", "c44")}
         per_fitter[name]["decays"] = decays

@@ -45,7 +45,7 @@ def test_intact_run_is_accepted(run_copy):
     files = _partition_files(run_copy)
     assert len(files) >= 6 and {f.parent.name for f in files} >= {"chi2", "states", "candidates", "pulls"}
     run = load_run(run_copy)
-    assert run.chi2.num_rows > 0
+    assert run.table("chi2").num_rows > 0
 
 
 def test_deleted_partition_is_refused(run_copy, tmp_path, capsys):

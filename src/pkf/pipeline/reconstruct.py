@@ -18,7 +18,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 import pkf
 from pkf.errors import InputError
@@ -30,6 +29,7 @@ from pkf.pipeline.batch import metrics_from_counts
 from pkf.pipeline.config import ReconstructionConfig
 from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
 from pkf.pipeline.plan import DatasetPlan, plan_dataset, with_keys
+from pkf.pipeline.progress import PartitionProgress, progress_bar
 from pkf.pipeline.resume import RunStaging, complete_run
 
 #: Default events per partition: bounds each worker's memory (~8000 hits per event at ν = 7.6,
@@ -120,14 +120,16 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
         use_workers = 1 if scheduler is None and (workers <= 1 or len(todo) <= 1) else workers
         if todo and (use_workers > 1 or scheduler is not None):
             reconstruct_task(todo[0], max_events=1)  # compile or load kernels here: workers load the cache
-        with tqdm(total=plan.n_events, initial=sum(events_of[n] for n in done), unit="event",
-                  desc="reconstruct", disable=None if progress is None else not progress) as bar:
+        with progress_bar(plan.n_events, "reconstruct", progress=progress,
+                          initial=sum(events_of[n] for n in done)) as bar:
+            events_done = PartitionProgress(bar, events_of)
+
             def on_done(entry):
                 done[entry["name"]] = entry
-                bar.update(events_of[entry["name"]])
+                events_done.finish(entry["name"])
 
             t0 = time.perf_counter()
-            execute(todo, use_workers, scheduler, on_done)
+            execute(todo, use_workers, scheduler, on_done, events_done.advance)
             work_wall = time.perf_counter() - t0
         run = _run_json(plan, run_config, done, dataset_path)
         run["execution"] = {"workers": None if scheduler else use_workers, "scheduler": scheduler,

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-from tqdm import tqdm
 
 import pkf
 from pkf.errors import InputError
@@ -20,6 +19,7 @@ from pkf.geometry import BUILTIN_GEOMETRIES, Geometry, load_geometry
 from pkf.io.atomic import atomic_write_json, staged_output_dir
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES, table_from_columns
 from pkf.io.writer import StreamingTableWriter
+from pkf.pipeline.progress import progress_bar
 from pkf.simulation.generators import (
     GENERATORS,
     GunSettings,
@@ -33,8 +33,12 @@ from pkf.simulation.pythia import PYTHIA_GENERATORS, PythiaSettings, pythia_even
 from pkf.simulation.response import decay_z, simulate_response
 from pkf.simulation.species import SPECIES_NAMES
 
-#: Events transported per compiled call (bounded memory; does not change the output).
+#: Events written per row group (bounded memory; the files depend on it: keep it fixed).
 EVENTS_PER_BATCH = 200
+#: Events transported per compiled call, between progress-bar updates (~1 s at ν = 7.6). A
+#: row group is the concatenation of these calls' rows, which do not depend on the split
+#: (:func:`simulate_batch`): the files do not depend on it.
+PROGRESS_EVENTS = 25
 
 
 @dataclass(frozen=True)
@@ -153,6 +157,19 @@ def simulate_batch(
     return hits, particles, mc_hits
 
 
+def _simulate_with_progress(geometry: Geometry, config: SimulationConfig, first_event: int, n_events: int,
+                            bar) -> tuple[pa.Table, pa.Table, pa.Table]:
+    """:func:`simulate_batch` of events first_event … first_event+n_events−1, in calls of
+    :data:`PROGRESS_EVENTS` events, each followed by ``bar.update``."""
+    pieces = []
+    for first in range(first_event, first_event + n_events, PROGRESS_EVENTS):
+        n = min(PROGRESS_EVENTS, first_event + n_events - first)
+        pieces.append(simulate_batch(geometry, config, first, n))
+        bar.update(n)
+    hits, particles, mc_hits = (pa.concat_tables(tables) for tables in zip(*pieces))
+    return hits, particles, mc_hits
+
+
 def run_simulation(config: SimulationConfig, out: str | Path, overwrite: bool = False,
                    progress: bool | None = None) -> dict:
     """Simulate `config.events` events into the dataset directory `out`; returns meta.json.
@@ -168,15 +185,14 @@ def run_simulation(config: SimulationConfig, out: str | Path, overwrite: bool = 
             name: StreamingTableWriter(staging / f"{name}.parquet", schema)
             for name, schema in (("hits", HITS), ("particles", PARTICLES), ("mc_hits", MC_HITS))
         }
-        with tqdm(total=config.events, unit="event", desc="simulate", disable=None if progress is None else not progress) as bar:
+        with progress_bar(config.events, "simulate", progress=progress) as bar:
             for first in range(0, config.events, EVENTS_PER_BATCH):
                 n = min(EVENTS_PER_BATCH, config.events - first)
-                hits, particles, mc_hits = simulate_batch(geometry, config, first, n)
+                hits, particles, mc_hits = _simulate_with_progress(geometry, config, first, n, bar)
                 writers["hits"].write(hits)
                 writers["particles"].write(particles)
                 writers["mc_hits"].write(mc_hits)
                 n_hits += hits.num_rows
-                bar.update(n)
         for writer in writers.values():
             writer.close()
         (staging / "geometry.toml").write_text(geometry.text)

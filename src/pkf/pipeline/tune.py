@@ -28,6 +28,7 @@ from pkf.params.transport import STEP_UT_TO_SCIFI
 from pkf.params.tuning import build_pairs, short_steps, step_groups, tune_slots
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
 from pkf.pipeline.inputs import align_mc, column, load_dataset, production_truth
+from pkf.pipeline.progress import progress_bar
 
 UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
 #: (x/z, y/z) grid points of the UT→SciFi table. The paper uses 50×50; 50×100 halves the
@@ -37,15 +38,19 @@ UT_TO_SCIFI_GRID = (50, 100)
 PDG_PION = 211
 
 
-def ut_to_scifi_table(geometry: Geometry, field_map) -> UTSciFiTable | None:
-    """The RK4 tabulation of the geometry's UT→SciFi step, if it has one."""
+def ut_to_scifi_table(geometry: Geometry, field_map, progress: bool | None = False) -> UTSciFiTable | None:
+    """The RK4 tabulation of the geometry's UT→SciFi step, if it has one.
+
+    progress: a bar over the grid's rows (None: only when stderr is a terminal).
+    """
     slots = slot_structure(geometry)
     for s, kind in enumerate(slots.between_type):
         if kind == STEP_UT_TO_SCIFI:
             last = slots.sub_last[s]
-            return tabulate_ut_to_scifi(field_map, z_from=float(geometry.layer_z[last]),
-                                        z_to=float(geometry.layer_z[last + 1]), p_min=UT_TO_SCIFI_P_MIN,
-                                        nx=UT_TO_SCIFI_GRID[0], ny=UT_TO_SCIFI_GRID[1])
+            with progress_bar(UT_TO_SCIFI_GRID[0], "tune: UT→SciFi table", unit="row", progress=progress) as bar:
+                return tabulate_ut_to_scifi(field_map, z_from=float(geometry.layer_z[last]),
+                                            z_to=float(geometry.layer_z[last + 1]), p_min=UT_TO_SCIFI_P_MIN,
+                                            nx=UT_TO_SCIFI_GRID[0], ny=UT_TO_SCIFI_GRID[1], progress=bar.update)
     return None
 
 
@@ -140,10 +145,12 @@ def pion_pairs(dataset_path, geometry_option: str | None = None, echo=None):
 
 
 def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = False, echo=print,
-               geometry: str | None = None) -> ParameterSet:
+               geometry: str | None = None, progress: bool | None = None) -> ParameterSet:
     """Tune every step of the dataset's geometry and write the parameter file `out`.
 
     geometry: ``--geometry`` NAME|FILE.toml, if given (else the one the dataset's meta.json records).
+    progress: bars over the UT→SciFi table's rows and over the steps (None: only when stderr
+    is a terminal); ``echo``'s lines are written above them.
 
     Raises:
         InputError: a bad ``out`` (:func:`check_output_file`), a dataset that is not a
@@ -157,18 +164,23 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
     geometry, dataset, field_map, pairs, n_events = pion_pairs(dataset_path, geometry, echo)
     check_enough_pairs(dataset_path, geometry, pairs, n_events)
     echo(f"tune: {pairs.x1.shape[0]} state pairs of pions from {n_events} events")
-    table = ut_to_scifi_table(geometry, field_map)
+    table = ut_to_scifi_table(geometry, field_map, progress)
     if table is not None:
         echo(f"tune: UT→SciFi table tabulated with RK4 ({time.perf_counter() - started:.0f} s so far)")
     uts_arrays = table.as_arrays() if table is not None else (np.zeros(META_SIZE), np.zeros((4, 1, 1, 1)))
+    slots = slot_structure(geometry)
+    steps = sum(g.pairs.size > 0 for g in step_groups(slots, pairs, geometry.layer_z.size))
 
-    def report(name, info):
-        noise = info["noise"]
-        fits = info["extrapolation"]
-        ok = all(v.get("valid", True) for v in fits.values() if isinstance(v, dict)) and noise["valid"]
-        echo(f"tune: {name:<9} {info['pairs']:>7} pairs  fits {'ok' if ok else 'NOT VALID'}")
+    with progress_bar(steps, "tune: steps", unit="step", progress=progress) as bar:
+        def report(name, info):
+            noise = info["noise"]
+            fits = info["extrapolation"]
+            ok = all(v.get("valid", True) for v in fits.values() if isinstance(v, dict)) and noise["valid"]
+            with bar.external_write_mode():
+                echo(f"tune: {name:<9} {info['pairs']:>7} pairs  fits {'ok' if ok else 'NOT VALID'}")
+            bar.update(1)
 
-    result = tune_slots(slot_structure(geometry), pairs, geometry.layer_z, uts_arrays, progress=report)
+        result = tune_slots(slots, pairs, geometry.layer_z, uts_arrays, progress=report)
     failed = failed_fits(result.reports)
     if failed:
         raise InputError(f"{dataset_path}: {len(failed)} fits did not converge ({', '.join(failed[:5])}"

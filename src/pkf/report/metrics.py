@@ -486,25 +486,13 @@ def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
     return np.unique(particle_key(column(chi2, "event_id", np.int64)[sel], mc[sel]))
 
 
-def _rates(chi2: pa.Table) -> tuple[float | None, float | None]:
-    """Ghost rate and clone rate of the tracks of a chi2 table (docs/physics.md#matching-and-metrics)."""
-    n = chi2.num_rows
-    if n == 0:
-        return None, None
-    ghost = column(chi2, "is_ghost", bool)
-    mc = column(chi2, "mc_particle_id", np.int64)
-    real = particle_key(column(chi2, "event_id", np.int64)[~ghost], mc[~ghost])
-    clone = (real.size - np.unique(real).size) / real.size if real.size else None
-    return _f(ghost.mean()), _f(clone)
-
-
-def _efficiency_section(truth: DatasetTruth, chi2_ok: pa.Table, has_mc: bool) -> dict:
+def _efficiency_section(truth: DatasetTruth, tracks_of: EntryTracks, has_mc: bool) -> dict:
     if not has_mc:
         return _section(False, "no MC truth in this run")
     if truth.status != "ok":
         return _section(False, truth.status)
-    found = np.isin(truth.reco_key, _found_particles(chi2_ok, ok_only=True))
-    ghost_rate, clone_rate = _rates(chi2_ok)
+    found = np.isin(truth.reco_key, _found(tracks_of.found_ok))
+    ghost_rate, clone_rate = _rates_of_counts(tracks_of.rates_ok)
     n = int(truth.reco_key.size)
     return _section(
         True,
@@ -674,35 +662,174 @@ def _timing_section(run: RunInput, name: str) -> dict:
 # ----------------------------------------------------------------------------- main entry
 
 
-def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth) -> tuple[dict, FitterArrays]:
+TYPE_CODES = (*TRACK_TYPES, "unknown")
+_FIRST_COLUMNS = ("p_true", *(f"res_{v}" for v in ("x", "y", "tx", "ty")), *(f"pull_{p}" for p in PULL_PARAMETERS))
+_KAON_CHI2_COLUMNS = ("event_id", "track_id", "mc_particle_id", "match_fraction", "is_ghost")
+_KAON_STATE_COLUMNS = ("event_id", "track_id", "qop", "tx", "ty", "z")
+
+
+def _rate_counts(chi2: pa.Table) -> np.ndarray:
+    """(tracks, ghosts, real, distinct real particles) of a chi2 table's rows: they add up over
+    parts of whole events (particle keys hold the event)."""
+    ghost = column(chi2, "is_ghost", bool)
+    mc = column(chi2, "mc_particle_id", np.int64)
+    real = particle_key(column(chi2, "event_id", np.int64)[~ghost], mc[~ghost])
+    return np.array([chi2.num_rows, int(ghost.sum()), real.size, np.unique(real).size], dtype=np.int64)
+
+
+def _rates_of_counts(counts: np.ndarray) -> tuple[float | None, float | None]:
+    """Ghost rate and clone rate (docs/physics.md#matching-and-metrics) from summed :func:`_rate_counts`."""
+    n, ghosts, real, unique_real = (int(c) for c in counts)
+    if n == 0:
+        return None, None
+    return _f(ghosts / n), (_f((real - unique_real) / real) if real else None)
+
+
+@dataclass
+class EntryTracks:
+    """What the report keeps of one entry's (run, fitter) tracks, gathered part by part of the
+    run (:meth:`~pkf.report.runs.RunInput.partitions`), so that memory grows with the few values
+    kept per track rather than with the run tables: counts; χ²/ndf and the ghost flag of the ok
+    tracks; the particles found; the first-hit pull rows (with δp/p and the track type); for the
+    B_s mass the ok tracks matched to kaons and their beamline states. The lists hold one
+    array per part, in the run's order (the order of the rows of the whole tables).
+    """
+
+    fitter: str
+    total: int = 0
+    chi2_ndf: list = field(default_factory=list)  # ok tracks
+    ghost: list = field(default_factory=list)  # ok tracks
+    found_ok: list = field(default_factory=list)  # particle keys matched by an ok track
+    found_any: list = field(default_factory=list)  # particle keys matched by any track
+    rates_ok: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
+    rates_any: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
+    first: dict = field(default_factory=lambda: {c: [] for c in (*_FIRST_COLUMNS, "dp_over_p", "type")})
+    kaon_chi2: list = field(default_factory=list)
+    kaon_states: list = field(default_factory=list)
+    explicit_types: bool = False  # chi2 has a track_type column
+    spans_detector: bool = False  # some track has UT or SciFi hits (else every track is long)
+
+    def add(self, chi2: pa.Table, states: pa.Table, pulls: pa.Table | None,
+            kaon_particles: np.ndarray | None) -> None:
+        """Add one part's rows of this fitter (``kaon_particles``: sorted particle keys of the
+        dataset's kaons when the mass is made, else None)."""
+        chi2_ok = chi2.filter(pc.equal(chi2.column("status"), "ok"))
+        self.total += chi2.num_rows
+        self.chi2_ndf.append(column(chi2_ok, "chi2_ndf"))
+        self.ghost.append(column(chi2_ok, "is_ghost", bool))
+        self.found_ok.append(_found_particles(chi2_ok, ok_only=True))
+        self.found_any.append(_found_particles(chi2, ok_only=False))
+        self.rates_ok += _rate_counts(chi2_ok)
+        self.rates_any += _rate_counts(chi2)
+        if pulls is not None:
+            self._add_first_hit(chi2, states, pulls)
+        if kaon_particles is not None:
+            self._add_kaons(chi2_ok, states, kaon_particles)
+
+    def _add_first_hit(self, chi2: pa.Table, states: pa.Table, pulls: pa.Table) -> None:
+        if "track_type" in chi2.column_names:
+            self.explicit_types = True
+            types = track_types(chi2)
+        else:
+            n_ut, n_scifi = column(chi2, "n_ut", np.int64), column(chi2, "n_scifi", np.int64)
+            self.spans_detector |= bool(np.any(n_ut > 0) or np.any(n_scifi > 0))
+            types = np.where(n_scifi > 0, "long", np.where(n_ut > 0, "upstream", "velo")).astype(object)
+        first = rows_of(pulls, self.fitter, RESOLUTION_LOCATION)
+        kinds = _types_of(first, chi2, types)
+        code = np.full(first.num_rows, TYPE_CODES.index("unknown"), dtype=np.int8)
+        for i, kind in enumerate(TRACK_TYPES):
+            code[kinds == kind] = i
+        for name in _FIRST_COLUMNS:
+            self.first[name].append(column(first, name))
+        self.first["dp_over_p"].append(delta_p_over_p(first, states))
+        self.first["type"].append(code)
+
+    def _add_kaons(self, chi2_ok: pa.Table, states: pa.Table, kaon_particles: np.ndarray) -> None:
+        """The ok tracks matched to kaons (all the mass needs of chi2: the best track of each
+        particle is chosen among that particle's tracks) and their beamline states."""
+        keys = particle_key(column(chi2_ok, "event_id", np.int64), column(chi2_ok, "mc_particle_id", np.int64))
+        kaon = chi2_ok.filter(pa.array(lookup_sorted(kaon_particles, keys)[1])).select(list(_KAON_CHI2_COLUMNS))
+        beamline = rows_of(states, self.fitter, MASS_LOCATION)
+        wanted = np.sort(_track_key(kaon))
+        self.kaon_chi2.append(kaon)
+        self.kaon_states.append(beamline.filter(pa.array(lookup_sorted(wanted, _track_key(beamline))[1]))
+                                .select(list(_KAON_STATE_COLUMNS)))
+
+    def first_hit(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The first-hit pull rows: columns (p_true, res_*, pull_*, dp_over_p) and track types.
+        Consumes the parts (one column's parts and its concatenation in memory at a time)."""
+        cols = {}
+        for name in list(self.first):
+            parts = self.first.pop(name)
+            cols[name] = np.concatenate(parts) if parts else np.zeros(0)
+            del parts
+        types = np.asarray(TYPE_CODES, dtype=object)[cols.pop("type").astype(np.int64)]
+        if not self.explicit_types and not self.spans_detector:  # e.g. the telescope: every track is long
+            types[types != "unknown"] = "long"
+        return cols, types
+
+    def ok_tracks(self) -> tuple[np.ndarray, np.ndarray]:
+        """χ²/ndf and is_ghost of the ok tracks (consumes the parts)."""
+        chi2_ndf = np.concatenate(self.chi2_ndf) if self.chi2_ndf else np.zeros(0)
+        ghost = np.concatenate(self.ghost) if self.ghost else np.zeros(0, dtype=bool)
+        self.chi2_ndf, self.ghost = [], []
+        return chi2_ndf, ghost
+
+    def kaon_tables(self) -> tuple[pa.Table, pa.Table]:
+        """(ok tracks matched to kaons, their beamline states)."""
+        return pa.concat_tables(self.kaon_chi2), pa.concat_tables(self.kaon_states)
+
+
+def _kaon_particles(run: RunInput, truth: DatasetTruth) -> np.ndarray | None:
+    """The dataset's kaon particle keys when the run's B_s mass is made, else None."""
+    return truth.kaon_particles if run.has_mc and truth.status == "ok" and truth.n_bs > 0 else None
+
+
+def read_entries(run: RunInput, truth: DatasetTruth, progress=None) -> dict[str, EntryTracks]:
+    """Each fitter's :class:`EntryTracks`, reading the run one part (partition) at a time.
+
+    progress: called with the number of events of each part read (run.json ``partitions``).
+    """
+    entries = {name: EntryTracks(name) for name in run.fitters}
+    kaons = _kaon_particles(run, truth)
+    events_of = {p.get("name"): p.get("events", 0) for p in run.info.get("partitions") or []
+                 if isinstance(p, dict)}
+    for part in run.partitions():
+        chi2, states, pulls = run.read_part(part)
+        for name, entry in entries.items():
+            entry.add(rows_of(chi2, name), states, pulls, kaons)
+        if progress is not None:
+            stem = Path(part["chi2"]).stem
+            progress(events_of.get(stem, 0) if len(events_of) > 1 else sum(events_of.values()))
+    return entries
+
+
+def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth,
+                   tracks_of: EntryTracks) -> tuple[dict, FitterArrays]:
     arrays = FitterArrays()
-    chi2 = rows_of(run.chi2, name)
-    ok_mask = pc.equal(chi2.column("status"), "ok")
-    chi2_ok = chi2.filter(ok_mask)
-    ghost_ok = column(chi2_ok, "is_ghost", bool)
+    chi2_ndf, ghost_ok = tracks_of.ok_tracks()
     tracks = {
-        "total": chi2.num_rows,
-        "ok": chi2_ok.num_rows,
-        "failed": chi2.num_rows - chi2_ok.num_rows,
+        "total": tracks_of.total,
+        "ok": int(chi2_ndf.size),
+        "failed": tracks_of.total - int(chi2_ndf.size),
         "matched": int((~ghost_ok).sum()) if run.has_mc else None,
         "ghost": int(ghost_ok.sum()) if run.has_mc else None,
     }
 
     # resolution and pulls at the first hit (Figs. 1, 2), long tracks as in the paper
-    if run.pulls is None:
+    if not run.has_pulls:
         note = f"no MC truth in run {run.path} (no pulls table)"
         resolution = _section(False, note, location=RESOLUTION_LOCATION)
         pulls = _section(False, note, location=PULL_LOCATION)
     else:
-        first_all = rows_of(run.pulls, name, RESOLUTION_LOCATION)
-        first_types = _types_of(first_all, chi2, track_types(chi2))
-        first = first_all.filter(pa.array(first_types == "long"))
-        arrays.p_true = column(first, "p_true")
-        arrays.residuals = {"dp_over_p": delta_p_over_p(first, run.states)}
+        first_all, first_types = tracks_of.first_hit()
+        long = first_types == "long"
+        arrays.p_true = first_all["p_true"][long]
+        arrays.residuals = {"dp_over_p": first_all["dp_over_p"][long]}
         for var in ("x", "y", "tx", "ty"):
-            arrays.residuals[var] = column(first, f"res_{var}")
-        arrays.pulls = {par: column(first, f"pull_{par}") for par in PULL_PARAMETERS}
-        empty = first.num_rows == 0
+            arrays.residuals[var] = first_all[f"res_{var}"][long]
+        arrays.pulls = {par: first_all[f"pull_{par}"][long] for par in PULL_PARAMETERS}
+        empty = not long.any()
         note = "no matched long track with a fitted first-hit state" if empty else None
         resolution = _section(
             not empty, note, location=RESOLUTION_LOCATION, track_type="long", p_edges_mev=P_EDGES_MEV.tolist(),
@@ -712,16 +839,16 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         )
         by_type = {}
         for kind in TRACK_TYPES:
-            rows = first_all.filter(pa.array(first_types == kind))
-            if rows.num_rows:
-                by_type[kind] = {"n_tracks": rows.num_rows,
-                                 **{par: pull_summary(column(rows, f"pull_{par}")) for par in PULL_PARAMETERS}}
+            rows = first_types == kind
+            if rows.any():
+                by_type[kind] = {"n_tracks": int(rows.sum()),
+                                 **{par: pull_summary(first_all[f"pull_{par}"][rows]) for par in PULL_PARAMETERS}}
         pulls = _section(not empty, note, location=PULL_LOCATION, track_type="long",
                          parameters={par: pull_summary(arrays.pulls[par]) for par in PULL_PARAMETERS},
                          by_type=by_type)
+        del first_all, first_types
 
     # χ²/ndf (Fig. 3)
-    chi2_ndf = column(chi2_ok, "chi2_ndf")
     chi2_section = chi2_summary(chi2_ndf, ghost_ok, run.has_mc)
     arrays.chi2_ndf_all = chi2_ndf[np.isfinite(chi2_ndf)]
     if run.has_mc:
@@ -737,9 +864,9 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         mass = _section(False, "the dataset has no B_s⁰ → φφ signal decay (generator bs2phiphi or pythia)",
                         location=MASS_LOCATION, n_signal_decays=0)
     else:
-        states = rows_of(run.states, name, MASS_LOCATION)
-        arrays.signal_masses, arrays.mass_decays = _bs_masses(truth, chi2_ok, states)
-        arrays.masses, signal = all_kaon_bs_masses(truth, chi2_ok, states)
+        kaon_chi2, states = tracks_of.kaon_tables()
+        arrays.signal_masses, arrays.mass_decays = _bs_masses(truth, kaon_chi2, states)
+        arrays.masses, signal = all_kaon_bs_masses(truth, kaon_chi2, states)
         arrays.mass_fit = fit_mass_peak(arrays.masses, MASS_WINDOW_MEV)
         lo, hi = MASS_WINDOW_MEV
         in_window = (arrays.masses > lo) & (arrays.masses < hi)
@@ -762,24 +889,27 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         "pulls": pulls,
         "chi2": chi2_section,
         "mass": mass,
-        "efficiency": _efficiency_section(truth, chi2_ok, run.has_mc),
+        "efficiency": _efficiency_section(truth, tracks_of, run.has_mc),
         "timing": _timing_section(run, name),
     }
     return report, arrays
 
 
-def _run_summary(run: RunInput, truth: DatasetTruth | None) -> dict:
+def _found(parts: list) -> np.ndarray:
+    return np.unique(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)
+
+
+def _run_summary(run: RunInput, truth: DatasetTruth | None, first_fitter: EntryTracks) -> dict:
     config = run.info.get("config") or {}
     counts = run.info.get("counts") or {}
     timing = {k: v for k, v in (run.info.get("timing") or {}).items() if k != "fit"}
     recomputed = None
     if run.has_mc and truth is not None and truth.status == "ok":
         # candidate level: every fitter's chi2 rows list all candidates; take the first fitter's
-        first = rows_of(run.chi2, run.fitters[0])
-        found = np.isin(truth.reco_key, _found_particles(first, ok_only=False))
-        ghost_rate, clone_rate = _rates(first)
+        found = np.isin(truth.reco_key, _found(first_fitter.found_any))
+        ghost_rate, clone_rate = _rates_of_counts(first_fitter.rates_any)
         recomputed = {
-            "tracks": first.num_rows,
+            "tracks": first_fitter.total,
             "reconstructible": int(truth.reco_key.size),
             "found": int(found.sum()),
             "efficiency": _f(found.mean()) if found.size else None,
@@ -868,12 +998,16 @@ def _compare_with_reference(entries: dict[str, dict], arrays: dict[str, FitterAr
 
 
 def compute_report(runs: list[RunInput], truths: list[DatasetTruth | None],
-                   reference: str | None = None) -> ReportData:
+                   reference: str | None = None, progress=None) -> ReportData:
     """All report numbers for the entries (label, fitter) of ``runs`` (validated, labels distinct).
 
     truths[i]: the MC truth of the dataset of runs[i] (`pkf.pipeline.report.load_truths`
     reads it), None for a run without MC truth.
     reference: ``LABEL/FITTER`` or ``LABEL`` of the entry to compare with (:func:`choose_reference`).
+    progress: called with the number of events of each part of a run read (:func:`read_entries`).
+
+    The run tables are read one partition at a time; what is kept per track is listed in
+    :class:`EntryTracks` (the numbers are those of the whole tables: the same rows in the same order).
 
     Raises:
         InputError: a run's dataset is present but malformed, or ``reference`` names no entry.
@@ -892,10 +1026,12 @@ def compute_report(runs: list[RunInput], truths: list[DatasetTruth | None],
         if run.has_mc:
             key = run.dataset_path.resolve() if run.dataset_path else Path(f"<none {index}>")
             truth = truths[index]
-        run_summaries.append(_run_summary(run, truth))
+        tracks = read_entries(run, truth or DatasetTruth("no MC truth"), progress)
+        run_summaries.append(_run_summary(run, truth, tracks[run.fitters[0]]))
         for name in run.fitters:
             entry = run.entry(name)
-            entries[entry], arrays[entry] = _fitter_report(run, index, name, truth or DatasetTruth("no MC truth"))
+            entries[entry], arrays[entry] = _fitter_report(run, index, name, truth or DatasetTruth("no MC truth"),
+                                                           tracks.pop(name))
             dataset_of[entry] = key if truth is not None else None
     _compare_with_reference(entries, arrays, reference, dataset_of)
 

@@ -28,9 +28,10 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from pkf.errors import InputError
-from pkf.io.reader import find_table, read_table
+from pkf.io.reader import _list_parquet_files, find_table, read_table
 from pkf.io.schemas import CHI2, PULLS, RUN_SCHEMAS, STATES
 from pkf.io.stream import file_sha256
 
@@ -45,27 +46,23 @@ REQUIRED_TABLES = ("chi2", "states", "candidates")
 
 @dataclass(frozen=True)
 class RunInput:
-    """One validated run directory.
+    """One validated run directory (its run.json; the tables are read partition by partition).
 
     Attributes:
         path: the run directory.
         label: the run's name in the report (``RUN:LABEL``, default the folder's name).
         info: contents of ``run.json``.
         fitters: fitter names in the run, in the order of run.json ``config.fitters``.
-        chi2: the ``chi2`` table (:data:`~pkf.io.schemas.CHI2`).
-        states: the ``states`` table (:data:`~pkf.io.schemas.STATES`).
-        pulls: the ``pulls`` table, or None when the run has no MC truth.
         has_mc: whether the run was made with MC truth (run.json has ``pattern``,
             or a pulls table exists); without it ``is_ghost`` carries no information.
+        has_pulls: whether the run has a ``pulls`` table.
     """
 
     path: Path
     info: dict
     fitters: tuple[str, ...]
-    chi2: pa.Table
-    states: pa.Table
-    pulls: pa.Table | None
     has_mc: bool
+    has_pulls: bool
     label: str = ""
 
     def entry(self, fitter: str) -> str:
@@ -77,6 +74,39 @@ class RunInput:
         """The dataset the run was reconstructed from (run.json ``input.path``, else ``config.dataset``)."""
         path = (self.info.get("input") or {}).get("path") or (self.info.get("config") or {}).get("dataset")
         return Path(path) if isinstance(path, str) and path else None
+
+    def partitions(self) -> list[dict[str, Path]]:
+        """The run's tables in parts of whole events, each a dict table name → file (or table):
+        one part per partition file when ``chi2``, ``states`` (and ``pulls``) have the same
+        file names (as `pkf reconstruct` writes them), else one part with each whole table."""
+        names = ("chi2", "states", "pulls") if self.has_pulls else ("chi2", "states")
+        locations = {name: find_table(self.path, name) for name in names}
+        files = {name: (_list_parquet_files(loc) if loc.is_dir() else [loc]) for name, loc in locations.items()}
+        shapes = {tuple(f.name for f in fs) for fs in files.values()}
+        if len(shapes) == 1 and all(loc.is_dir() for loc in locations.values()):
+            return [{name: files[name][k] for name in names} for k in range(len(files["chi2"]))]
+        return [locations]
+
+    def read_part(self, part: dict[str, Path]) -> tuple[pa.Table, pa.Table, pa.Table | None]:
+        """(chi2, states, pulls or None) of one part of :meth:`partitions`, validated (one-line
+        InputError naming the file, column and first bad row); fitters must be the run's."""
+        chi2 = read_table(part["chi2"], CHI2, name="chi2")
+        states = read_table(part["states"], STATES, name="states")
+        pulls = read_table(part["pulls"], PULLS, name="pulls") if "pulls" in part else None
+        for name, table in (("chi2", chi2), ("states", states), ("pulls", pulls)):
+            if table is None or table.num_rows == 0:
+                continue
+            unknown = set(pc.unique(table.column("fitter")).to_pylist()) - set(self.fitters)
+            if unknown:
+                raise InputError(f"{part[name]}: fitter {sorted(unknown)[0]!r} is not a fitter of the run "
+                                 f"({', '.join(self.fitters)}: run.json config.fitters, else the chi2 table's)")
+        return chi2, states, pulls
+
+    def table(self, name: str) -> pa.Table:
+        """A whole run table (``chi2``, ``states``, ``pulls``), validated: for small runs and
+        tests; the report reads :meth:`partitions` one at a time."""
+        schema = {"chi2": CHI2, "states": STATES, "pulls": PULLS}[name]
+        return read_table(self.path, schema, name=name)
 
 
 def _read_run_json(path: Path) -> dict:
@@ -229,30 +259,32 @@ def load_run(path: str | os.PathLike, label: str | None = None) -> RunInput:
     for name in REQUIRED_TABLES:
         if find_table(path, name) is None:
             raise InputError(f"{path}: table {name!r} not found (expected {name}/ or {name}.parquet; incomplete run directory)")
-    chi2 = read_table(path, CHI2, name="chi2")
-    states = read_table(path, STATES, name="states")
-    pulls = read_table(path, PULLS, name="pulls") if find_table(path, "pulls") is not None else None
-    has_mc = "pattern" in info or pulls is not None
-
-    in_table = list(dict.fromkeys(chi2.column("fitter").to_pylist()))
+    has_pulls = find_table(path, "pulls") is not None
+    has_mc = "pattern" in info or has_pulls
     configured = (info.get("config") or {}).get("fitters")
     if isinstance(configured, list) and all(isinstance(f, str) for f in configured):
-        extra = [f for f in in_table if f not in configured]
-        if extra:
-            raise InputError(f"{find_table(path, 'chi2')}: fitter {extra[0]!r} is not in run.json config.fitters")
         fitters = tuple(configured)
     else:
-        fitters = tuple(in_table)
+        fitters = _fitters_in_chi2(find_table(path, "chi2"))
     if not fitters:
         raise InputError(f"{path}: the run names no fitter (empty chi2 table and no config.fitters)")
-    for name, table in (("states", states), ("pulls", pulls)):
-        if table is None or table.num_rows == 0:
-            continue
-        unknown = set(table.column("fitter").to_pylist()) - set(fitters)
-        if unknown:
-            raise InputError(f"{path}: table {name!r} has fitter {sorted(unknown)[0]!r} that chi2 does not have")
     label = Path(os.path.abspath(path)).name if label is None else label
-    return RunInput(path, info, fitters, chi2, states, pulls, has_mc, label)
+    return RunInput(path, info, fitters, has_mc, has_pulls, label)
+
+
+def _fitters_in_chi2(location: Path) -> tuple[str, ...]:
+    """The fitters of a chi2 table in order of appearance (its ``fitter`` column only)."""
+    import pyarrow.parquet as pq
+
+    files = _list_parquet_files(location) if location.is_dir() else [location]
+    found: dict[str, None] = {}
+    for file in files:
+        try:
+            column = pq.read_table(file, columns=["fitter"]).column("fitter")
+        except (OSError, KeyError, pa.ArrowException) as exc:
+            raise InputError(f"{file}: cannot read column 'fitter' ({str(exc).splitlines()[0]})") from None
+        found.update(dict.fromkeys(str(f) for f in column.to_pylist()))
+    return tuple(found)
 
 
 def load_runs(specs) -> list[RunInput]:
