@@ -23,7 +23,9 @@ def test_config_round_trips_and_resolves_each_fitters_passes():
     data = json.loads(json.dumps(config.to_dict()))  # what run.json and the workers hold
     assert ReconstructionConfig.from_dict(data) == config
     assert config.fit_options(get_fitter("reference")).kalman.iterations == 2
-    assert config.fit_options(get_fitter("parametrized")).kalman.iterations == 1
+    assert config.fit_options(get_fitter("parametrized")).kalman.iterations == get_fitter("parametrized").iterations
+    assert ReconstructionConfig(kalman=KalmanOptions(iterations=3)).fit_options(get_fitter("reference")).kalman \
+        .iterations == 3
     options = config.fit_options(get_fitter("gsf"))
     assert options == FitOptions(9.0, 2, KalmanOptions(1, "rts"), GX2FOptions(3), GSFOptions(4, 1e-3, "mode"))
     with pytest.raises(ValueError):

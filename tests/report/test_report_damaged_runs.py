@@ -98,3 +98,24 @@ def test_partition_list_pointing_outside_the_run_is_refused(run_copy):
     (run_copy / "run.json").write_text(json.dumps(info))
     with pytest.raises(InputError, match=r"run\.json: partitions\[0\]\.files\.chi2"):
         load_run(run_copy)
+
+
+def test_a_run_written_before_the_track_type_column_is_still_reported(run_copy, tmp_path):
+    """Runs of pkf before `chi2.track_type` (issue 15) have no such column: the report reads
+    them (types from the hit counts) instead of refusing them as malformed."""
+    import hashlib
+
+    import pyarrow.parquet as pq
+
+    info = json.loads((run_copy / "run.json").read_text())
+    for partition in info["partitions"]:
+        entry = partition["files"]["chi2"]
+        path = run_copy / entry["path"]
+        table = pq.read_table(path)
+        pq.write_table(table.drop_columns(["track_type"]), path)
+        entry["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    (run_copy / "run.json").write_text(json.dumps(info))
+    out = tmp_path / "report"
+    assert main(["report", str(run_copy), "--out", str(out)]) == 0
+    entry = json.loads((out / "summary.json").read_text())["entries"]["run/parametrized"]
+    assert entry["resolution"]["available"] and entry["tracks"]["matched"] > 0

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from pkf.errors import InputError
 from pkf.io.reader import _list_parquet_files, find_table, read_table
@@ -90,7 +91,7 @@ class RunInput:
     def read_part(self, part: dict[str, Path]) -> tuple[pa.Table, pa.Table, pa.Table | None]:
         """(chi2, states, pulls or None) of one part of :meth:`partitions`, validated (one-line
         InputError naming the file, column and first bad row); fitters must be the run's."""
-        chi2 = read_table(part["chi2"], CHI2, name="chi2")
+        chi2 = read_chi2(part["chi2"])
         states = read_table(part["states"], STATES, name="states")
         pulls = read_table(part["pulls"], PULLS, name="pulls") if "pulls" in part else None
         for name, table in (("chi2", chi2), ("states", states), ("pulls", pulls)):
@@ -105,8 +106,28 @@ class RunInput:
     def table(self, name: str) -> pa.Table:
         """A whole run table (``chi2``, ``states``, ``pulls``), validated: for small runs and
         tests; the report reads :meth:`partitions` one at a time."""
-        schema = {"chi2": CHI2, "states": STATES, "pulls": PULLS}[name]
-        return read_table(self.path, schema, name=name)
+        if name == "chi2":
+            return read_chi2(self.path)
+        return read_table(self.path, {"states": STATES, "pulls": PULLS}[name], name=name)
+
+
+#: ``chi2`` as pkf wrote it before the ``track_type`` column: such runs are still read; the
+#: report then takes each track's type from its hit counts (`pkf.report.metrics.track_types`).
+CHI2_WITHOUT_TRACK_TYPE = pa.schema([f for f in CHI2 if f.name != "track_type"])
+
+
+def read_chi2(path: Path) -> pa.Table:
+    """The validated ``chi2`` table at `path` (a run, its table directory or file), with or
+    without the ``track_type`` column (runs written before it have none)."""
+    schema = CHI2
+    location = find_table(path, "chi2")
+    files = [] if location is None else [location] if location.is_file() else _list_parquet_files(location)
+    try:
+        if files and "track_type" not in pq.read_schema(files[0]).names:
+            schema = CHI2_WITHOUT_TRACK_TYPE
+    except (OSError, pa.ArrowInvalid):
+        pass  # read_table says what is wrong with the file
+    return read_table(path, schema, name="chi2")
 
 
 def _read_run_json(path: Path) -> dict:
