@@ -133,7 +133,7 @@ import numpy as np
 from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import NodeStages, node_stages, scalar_update
-from pkf.physics.linalg import copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
+from pkf.physics.linalg import add_matvec5, copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
@@ -286,6 +286,21 @@ def _normalise_and_cut(w, mu, cov, n, cut):
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _forget_nearest(nearest, nearest_d, a):
+    """Component a has no nearest neighbour yet (index −1 at distance ∞)."""
+    nearest_d[a] = np.inf
+    nearest[a] = -1
+
+
+@nb.njit(cache=True, inline="always")
+def _offer_nearest(nearest, nearest_d, a, b, d):
+    """Component b at KL distance d becomes a's nearest neighbour if strictly closer."""
+    if d < nearest_d[a]:
+        nearest_d[a] = d
+        nearest[a] = b
+
+
 @nb.njit(cache=True, error_model="numpy")
 def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
@@ -294,17 +309,12 @@ def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
         return n
     for i in range(n):
         alive[i] = True
-        nearest_d[i] = np.inf
-        nearest[i] = -1
+        _forget_nearest(nearest, nearest_d, i)
     for i in range(n):
         for j in range(i + 1, n):
             d = _kl_distance(mu, cov, i, j)
-            if d < nearest_d[i]:
-                nearest_d[i] = d
-                nearest[i] = j
-            if d < nearest_d[j]:
-                nearest_d[j] = d
-                nearest[j] = i
+            _offer_nearest(nearest, nearest_d, i, j, d)
+            _offer_nearest(nearest, nearest_d, j, i, d)
     count = n
     while count > max_n:
         i = -1
@@ -315,28 +325,20 @@ def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
         _merge_into(w, mu, cov, i, j)
         alive[j] = False
         count -= 1
-        nearest_d[i] = np.inf
-        nearest[i] = -1
+        _forget_nearest(nearest, nearest_d, i)
         for k in range(n):
             if not alive[k] or k == i:
                 continue
             d = _kl_distance(mu, cov, i, k)
-            if d < nearest_d[i]:
-                nearest_d[i] = d
-                nearest[i] = k
+            _offer_nearest(nearest, nearest_d, i, k, d)
             if nearest[k] == i or nearest[k] == j:
                 # its partner changed: recompute its nearest neighbour
-                nearest_d[k] = np.inf
-                nearest[k] = -1
+                _forget_nearest(nearest, nearest_d, k)
                 for l in range(n):
                     if alive[l] and l != k:
-                        dl = _kl_distance(mu, cov, k, l)
-                        if dl < nearest_d[k]:
-                            nearest_d[k] = dl
-                            nearest[k] = l
-            elif d < nearest_d[k]:
-                nearest_d[k] = d
-                nearest[k] = i
+                        _offer_nearest(nearest, nearest_d, k, l, _kl_distance(mu, cov, k, l))
+            else:
+                _offer_nearest(nearest, nearest_d, k, i, d)
     out = 0
     for c in range(n):
         if alive[c]:
@@ -346,12 +348,19 @@ def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
     return out
 
 
-@nb.njit(cache=True, error_model="numpy")
-def _collapse(w, mu, cov, n, out_mean, out_cov):
-    """Mean and covariance of the mixture (moment matching)."""
+@nb.njit(cache=True, inline="always")
+def _total_weight(w, n):
+    """Σ w_c over the first n components, in component order."""
     total = 0.0
     for c in range(n):
         total += w[c]
+    return total
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _collapse(w, mu, cov, n, out_mean, out_cov):
+    """Mean and covariance of the mixture (moment matching)."""
+    total = _total_weight(w, n)
     for k in range(5):
         s = 0.0
         for c in range(n):
@@ -363,9 +372,7 @@ def _collapse(w, mu, cov, n, out_mean, out_cov):
 @nb.njit(cache=True, error_model="numpy")
 def _second_moment(w, mu, cov, n, centre, out_cov):
     """Covariance of the mixture about `centre`: Σ w_c·(P_c + (μ_c − centre)(μ_c − centre)ᵀ)."""
-    total = 0.0
-    for c in range(n):
-        total += w[c]
+    total = _total_weight(w, n)
     for k in range(5):
         for l in range(5):
             s = 0.0
@@ -749,11 +756,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
                     for r in range(5):
                         s += fcov[i, k, r] * sinv[r, l]
                     gain[k, l] = s
-            for k in range(5):
-                s = fmu[i, k]
-                for l in range(5):
-                    s += gain[k, l] * diff[l]
-                pmu[n, k] = s
+            add_matvec5(fmu[i], gain, diff, pmu[n])
             for k in range(5):
                 for l in range(5):
                     s = fcov[i, k, l]

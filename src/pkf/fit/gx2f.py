@@ -72,10 +72,13 @@ from pkf.fit.kalman import add_node_information, transport_information
 from pkf.physics.linalg import (
     copy5,
     invert_spd,
+    matmul52,
     sandwich,
     search_sorted,
     set_identity,
     symmetrise,
+    zero5,
+    zero55,
 )
 from pkf.fit.propagate import (
     mean_energy_loss,
@@ -250,10 +253,8 @@ def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta
     covariance of every node's state; returns False if the reduced normal matrix at the
     first node is not positive definite. qop_weight [MeV²] > 0 adds the Gaussian prior
     qop_weight·(q/p − qop_prior)² on the first node's q/p (VELO-only tracks)."""
-    for i in range(5):
-        vec[i] = 0.0
-        for j in range(5):
-            info[i, j] = 0.0
+    zero5(vec)
+    zero55(info)
     for k in range(n - 1, -1, -1):
         if active[k]:
             add_node_information(info, vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], node_state[k])
@@ -265,12 +266,7 @@ def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta
                 continue
             gp = g[p]
             lam = 1.0 / (theta0[p] * theta0[p])
-            for i in range(5):
-                for c in range(2):
-                    s = 0.0
-                    for l in range(5):
-                        s += info[i, l] * gp[l, c]
-                    yg[i, c] = s
+            matmul52(info, gp, yg)
             s00 = lam
             s01 = 0.0
             s11 = lam

@@ -60,7 +60,20 @@ import numpy as np
 
 from pkf.fit.driver import register_fitter
 from pkf.fit.extrapolator import extrapolate
-from pkf.physics.linalg import copy5, copy55, invert_spd, matmul55, sandwich, symmetrise
+from pkf.physics.linalg import (
+    add_matvec5,
+    copy5,
+    copy55,
+    invert_spd,
+    matmul55,
+    matmul55_tn,
+    matvec5,
+    matvec5_t,
+    sandwich,
+    symmetrise,
+    zero5,
+    zero55,
+)
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 
 SMOOTHER_WEIGHTED_MEAN = 0
@@ -184,24 +197,10 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
     """Information of the state downstream of a step x′ = F·x, carried to upstream of it:
     out = Fᵀ·a·F (5×5, symmetrised; out may be a) and vec ← Fᵀ·vec. tmp (5×5) and
     tmp_vec (5) are scratch."""
-    for i in range(5):
-        for j in range(5):
-            s = 0.0
-            for l in range(5):
-                s += a[i, l] * f[l, j]
-            tmp[i, j] = s
-    for i in range(5):
-        for j in range(5):
-            s = 0.0
-            for l in range(5):
-                s += f[l, i] * tmp[l, j]
-            out[i, j] = s
+    matmul55(a, f, tmp)
+    matmul55_tn(f, tmp, out)
     symmetrise(out)
-    for i in range(5):
-        s = 0.0
-        for l in range(5):
-            s += f[l, i] * vec[l]
-        tmp_vec[i] = s
+    matvec5_t(f, vec, tmp_vec)
     copy5(tmp_vec, vec)
 
 
@@ -278,38 +277,27 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
     spd_vec = vec5[10:20]
     origin = vec5[20:25]  # zeros: the measurements enter as measured values
     vec5 = vec5[:5]
-    for i in range(5):
-        info_vec[i] = 0.0
+    zero5(info_vec)
     a = mats[3]
     inv = mats[4]
     tmp = mats[0]
     tmp2 = mats[1]
     lu = mats[5]
-    for i in range(5):
-        origin[i] = 0.0
-        for j in range(5):
-            info[i, j] = 0.0
+    zero5(origin)
+    zero55(info)
     for k in range(n - 1, -1, -1):
         if active[k]:
             add_node_information(info, info_vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], origin)
         # combination in information form: C = (P⁻¹ + Y)⁻¹, x = C·(P⁻¹·x_p + y)
         if not invert_spd(pred_cov[k], inv, lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
-        for i in range(5):
-            s = info_vec[i]
-            for j in range(5):
-                s += inv[i, j] * pred[k, j]
-            vec5[i] = s
+        add_matvec5(info_vec, inv, pred[k], vec5)
         for i in range(5):
             for j in range(5):
                 a[i, j] = inv[i, j] + info[i, j]
         if not invert_spd(a, out_cov[k], lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
-        for i in range(5):
-            s = 0.0
-            for j in range(5):
-                s += out_cov[k, i, j] * vec5[j]
-            out_state[k, i] = s
+        matvec5(out_cov[k], vec5, out_state[k])
         for i in range(5):
             if not out_cov[k, i, i] > 0.0:
                 return STATUS_NOT_POSITIVE_DEFINITE
@@ -362,11 +350,7 @@ def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, ma
         matmul55(tmp, inv, gain)
         for i in range(5):
             vec5[i] = out_state[k + 1, i] - pred[k + 1, i]
-        for i in range(5):
-            s = filt[k, i]
-            for j in range(5):
-                s += gain[i, j] * vec5[j]
-            out_state[k, i] = s
+        add_matvec5(filt[k], gain, vec5, out_state[k])
         for i in range(5):
             for j in range(5):
                 tmp2[i, j] = out_cov[k + 1, i, j] - pred_cov[k + 1, i, j]

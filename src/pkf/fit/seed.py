@@ -41,7 +41,7 @@ import math
 import numba as nb
 import numpy as np
 
-from pkf.physics.linalg import invert_spd
+from pkf.physics.linalg import invert_spd, matvec5
 from pkf.geometry.detector import SUBDETECTORS
 from pkf.geometry.field import field_at
 from pkf.physics.transport import C_LIGHT
@@ -150,11 +150,7 @@ def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid
         for i in range(5):
             out_state[i] = np.nan
         return np.inf
-    for i in range(5):
-        s = 0.0
-        for j in range(5):
-            s += inv[i, j] * b[j]
-        out_state[i] = s
+    matvec5(inv, b, out_state)
     # the fitted line parameters are at z_ref already; tx0/ty0 are the slopes there
     for i in range(5):
         for j in range(5):

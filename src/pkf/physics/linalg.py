@@ -29,6 +29,21 @@ def copy55(src, dst):
 
 
 @nb.njit(cache=True, inline="always")
+def zero5(v):
+    """v[:] = 0 for a 5-vector."""
+    for i in range(5):
+        v[i] = 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def zero55(a):
+    """a[:, :] = 0 for a 5×5 matrix."""
+    for i in range(5):
+        for j in range(5):
+            a[i, j] = 0.0
+
+
+@nb.njit(cache=True, inline="always")
 def set_identity(a):
     """a = 1 (5×5)."""
     for i in range(5):
@@ -48,10 +63,52 @@ def matmul55(a, b, out):
 
 
 @nb.njit(cache=True, inline="always")
+def matmul52(a, b, out):
+    """out = a·b for a 5×5 a and a 5×2 b; out (5×2) must not alias a or b."""
+    for i in range(5):
+        for j in range(2):
+            s = 0.0
+            for k in range(5):
+                s += a[i, k] * b[k, j]
+            out[i, j] = s
+
+
+@nb.njit(cache=True, inline="always")
+def matmul55_tn(a, b, out):
+    """out = aᵀ·b (5×5); out must not alias a or b."""
+    for i in range(5):
+        for j in range(5):
+            s = 0.0
+            for k in range(5):
+                s += a[k, i] * b[k, j]
+            out[i, j] = s
+
+
+@nb.njit(cache=True, inline="always")
 def matvec5(a, v, out):
     """out = a·v (5×5 times 5-vector)."""
     for i in range(5):
         s = 0.0
+        for k in range(5):
+            s += a[i, k] * v[k]
+        out[i] = s
+
+
+@nb.njit(cache=True, inline="always")
+def matvec5_t(a, v, out):
+    """out = aᵀ·v (5×5 transposed times 5-vector)."""
+    for i in range(5):
+        s = 0.0
+        for k in range(5):
+            s += a[k, i] * v[k]
+        out[i] = s
+
+
+@nb.njit(cache=True, inline="always")
+def add_matvec5(x, a, v, out):
+    """out = x + a·v (5-vectors, a 5×5), summed from x[i] upwards; out may be x."""
+    for i in range(5):
+        s = x[i]
         for k in range(5):
             s += a[i, k] * v[k]
         out[i] = s
