@@ -502,7 +502,7 @@ def _gx2f_end(f, t, lo, hi, status, out_state, out_cov):
         f.out_converged[t] = False
 
 
-register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end)
+register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end, allocates=False)
 
 
 # ----------------------------------------------------------------------------------

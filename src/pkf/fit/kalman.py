@@ -448,4 +448,4 @@ def _kalman_end(f, t, lo, hi, status, out_state, out_cov):
         _keep_stages(f, lo, hi)
 
 
-register_fitter(KalmanFitter, _kalman_begin, _kalman_fit, _kalman_end)
+register_fitter(KalmanFitter, _kalman_begin, _kalman_fit, _kalman_end, allocates=False)
