@@ -30,6 +30,7 @@ from pkf.fit.beamline import beamline_states  # noqa: E402
 from pkf.fit.extrapolator import extrapolate  # noqa: E402
 from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch  # noqa: E402
 from pkf.geometry import load_geometry  # noqa: E402
+from pkf.jit import NO_REFCOUNT  # noqa: E402
 from pkf.params.parameter_set import shipped_parameters  # noqa: E402
 from pkf.params.gauss import gaussian_core  # noqa: E402
 
@@ -43,19 +44,24 @@ def subset(batch: TrackBatch, tracks: np.ndarray) -> TrackBatch:
                       batch.hx[nodes], batch.hy[nodes], batch.m[nodes], batch.sigma[nodes])
 
 
-@nb.njit
 def extrapolate_only(ext, offsets, z, states):
     """Chain the extrapolations of every track from its state at the first node."""
-    out = np.empty(5)
-    jac = np.empty((5, 5))
-    noise = np.empty((5, 5))
-    work = np.empty((6, 5, 5))
-    cur = np.empty(5)
+    _extrapolate_chain(ext, offsets, z, states, np.empty(5), np.empty((5, 5)), np.empty((5, 5)),
+                       np.empty((6, 5, 5)), np.empty(5))
+
+
+@nb.njit(**NO_REFCOUNT)
+def _extrapolate_chain(ext, offsets, z, states, out, jac, noise, work, cur):
+    """`extrapolate_only`, compiled like the fit (`pkf.jit.NO_REFCOUNT`), so that the
+    extrapolation's share of the split is not charged with reference counts the fit
+    does not make."""
     for t in range(offsets.size - 1):
-        cur[:] = states[t]
+        for i in range(5):
+            cur[i] = states[t, i]
         for k in range(offsets[t] + 1, offsets[t + 1]):
             extrapolate(ext, cur, z[k - 1], z[k], out, jac, noise, work)
-            cur[:] = out
+            for i in range(5):
+                cur[i] = out[i]
 
 
 def best_of(repeat, fn):

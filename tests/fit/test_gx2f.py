@@ -76,7 +76,7 @@ def _trajectory(ext, batch, t, alpha, theta):
     plane_lo = search_sorted(ext.plane_z, batch.z[lo], True)
     status = _propagate(ext, alpha, theta, batch.z[lo:hi], n, plane_lo, arrays["node_state"], arrays["jac"],
                         arrays["g"], arrays["theta0"], arrays["step_plane"], np.zeros((5, 5)), np.zeros((5, 5)),
-                        np.zeros(2, dtype=np.int64))
+                        np.zeros(2, dtype=np.int64), np.zeros((4, 5, 5)))
     assert status == 0
     return lo, hi, n, arrays
 

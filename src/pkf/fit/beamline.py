@@ -16,6 +16,7 @@ from pkf.fit.extrapolator import extrapolate
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.geometry.detector import Geometry
 from pkf.geometry.field import uniform_field
+from pkf.jit import NO_REFCOUNT
 from pkf.physics.constants import MASS_PION
 from pkf.physics.linalg import sandwich
 
@@ -32,9 +33,14 @@ def straight_line_extrapolator(geometry: Geometry, mass: float = MASS_PION) -> R
 @nb.njit(cache=True)
 def beamline_states(ext, z_first, first_states, first_covs, out_z, out_states, out_covs):
     """Beamline state of each track from its optimal state at the first hit (z_first [mm])."""
-    jac = np.empty((5, 5))
-    noise = np.empty((5, 5))
-    work = np.empty((6, 5, 5))
+    _beamline_loop(ext, z_first, first_states, first_covs, out_z, out_states, out_covs, np.empty((5, 5)),
+                   np.empty((5, 5)), np.empty((6, 5, 5)))
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _beamline_loop(ext, z_first, first_states, first_covs, out_z, out_states, out_covs, jac, noise, work):
+    """`beamline_states` with the caller's scratch (jac, noise 5×5, work (6, 5, 5)): no
+    allocation, so compiled without reference counting (`pkf.jit.NO_REFCOUNT`)."""
     for t in range(z_first.size):
         s = first_states[t]
         t2 = s[2] * s[2] + s[3] * s[3]

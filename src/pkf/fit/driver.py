@@ -19,6 +19,8 @@ batch) whose class is registered with `register_fitter(cls, begin, fit, end)`:
 A fitter tuple also has the field ``measurement_only_fallback`` (`find_outlier`'s
 option for mixture outputs). numba resolves the three calls when it compiles
 `fit_tracks` for the fitter's type (`pkf.fit.dispatch`): one compiled loop per fitter.
+A fitter registered with ``allocates=False`` runs through `fit_tracks_no_refcount`, the
+same loop compiled without reference counting (`track_loop` picks the kernel).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 
 from pkf.fit.dispatch import dispatched
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK, STATUS_TOO_FEW_HITS
+from pkf.jit import NO_REFCOUNT
 
 begin_track = dispatched("begin_track", "fitter, t, seed", "Prepare the fit of track t; returns a status code.")
 fit_track = dispatched("fit_track", "fitter, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov",
@@ -37,14 +40,17 @@ end_track = dispatched("end_track", "fitter, t, lo, hi, status, out_state, out_c
 
 
 @nb.njit(cache=True, inline="always")
-def node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
+def node_chi2(state, cov, n_meas, hx, hy, m, sigma, active, with_cov=True):
     """Standardised χ² r·R⁻¹·r of one node's smoothed residual r = m − H·x, with
-    R = V − H·C·Hᵀ (active node) or V + H·C·Hᵀ (outlier) the residual's covariance;
-    −1 if R is not positive definite. Used to find outliers (`find_outlier`)."""
+    R = V − H·C·Hᵀ (active node) or V + H·C·Hᵀ (outlier) the residual's covariance
+    (with_cov False: R = V, the measurement variance alone); −1 if R is not positive
+    definite. Used to find outliers (`find_outlier`)."""
     sign = -1.0 if active else 1.0
     r0 = m[0] - (hx[0] * state[0] + hy[0] * state[1])
     v0 = sigma[0] * sigma[0]
-    c00 = hx[0] * (hx[0] * cov[0, 0] + hy[0] * cov[0, 1]) + hy[0] * (hx[0] * cov[1, 0] + hy[0] * cov[1, 1])
+    c00 = 0.0
+    if with_cov:
+        c00 = hx[0] * (hx[0] * cov[0, 0] + hy[0] * cov[0, 1]) + hy[0] * (hx[0] * cov[1, 0] + hy[0] * cov[1, 1])
     r00 = v0 + sign * c00
     if n_meas == 1:
         if not r00 > 0.0:
@@ -52,8 +58,11 @@ def node_chi2(state, cov, n_meas, hx, hy, m, sigma, active):
         return r0 * r0 / r00
     r1 = m[1] - (hx[1] * state[0] + hy[1] * state[1])
     v1 = sigma[1] * sigma[1]
-    c11 = hx[1] * (hx[1] * cov[0, 0] + hy[1] * cov[0, 1]) + hy[1] * (hx[1] * cov[1, 0] + hy[1] * cov[1, 1])
-    c01 = hx[0] * (hx[1] * cov[0, 0] + hy[1] * cov[0, 1]) + hy[0] * (hx[1] * cov[1, 0] + hy[1] * cov[1, 1])
+    c11 = 0.0
+    c01 = 0.0
+    if with_cov:
+        c11 = hx[1] * (hx[1] * cov[0, 0] + hy[1] * cov[0, 1]) + hy[1] * (hx[1] * cov[1, 0] + hy[1] * cov[1, 1])
+        c01 = hx[0] * (hx[1] * cov[0, 0] + hy[1] * cov[0, 1]) + hy[0] * (hx[1] * cov[1, 0] + hy[1] * cov[1, 1])
     r11 = v1 + sign * c11
     r01 = sign * c01
     det = r00 * r11 - r01 * r01
@@ -72,7 +81,7 @@ def count_ndf(n_meas, active):
     return ndf
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def find_outlier(state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts, out_node_chi2,
                  measurement_only_fallback):
     """Every node's standardised χ² (`node_chi2` of its output state and covariance) into
@@ -93,7 +102,7 @@ def find_outlier(state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts, out
         c_node = node_chi2(state[k], cov[k], n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
         if c_node < 0.0:
             if measurement_only_fallback:
-                c_node = node_chi2(state[k], np.zeros((5, 5)), n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k])
+                c_node = node_chi2(state[k], cov[k], n_meas[k], hx[k], hy[k], m[k], sigma[k], active[k], False)
             else:
                 status = STATUS_NOT_POSITIVE_DEFINITE
         out_node_chi2[k] = c_node
@@ -105,11 +114,25 @@ def find_outlier(state, cov, n_meas, hx, hy, m, sigma, active, outlier_cuts, out
     return status, worst
 
 
-def register_fitter(fitter_class: type, begin, fit, end) -> None:
-    """Make the njit functions begin, fit and end those of fitters of `fitter_class`."""
+#: Fitter classes whose begin/fit/end allocate nothing (`register_fitter`).
+_NOT_ALLOCATING: set[type] = set()
+
+
+def register_fitter(fitter_class: type, begin, fit, end, allocates: bool = True) -> None:
+    """Make the njit functions begin, fit and end those of fitters of `fitter_class`.
+    With allocates=False (they create no array) its tracks run through
+    `fit_tracks_no_refcount`, compiled without reference counting (`pkf.jit`)."""
     begin_track.register(fitter_class, begin)
     fit_track.register(fitter_class, fit)
     end_track.register(fitter_class, end)
+    if not allocates:
+        _NOT_ALLOCATING.add(fitter_class)
+
+
+def track_loop(fitter):
+    """The compiled track loop for `fitter`: `fit_tracks_no_refcount` if its class was
+    registered with allocates=False, else `fit_tracks`."""
+    return fit_tracks_no_refcount if type(fitter) in _NOT_ALLOCATING else fit_tracks
 
 
 def max_nodes(offsets: np.ndarray) -> int:
@@ -117,10 +140,10 @@ def max_nodes(offsets: np.ndarray) -> int:
     return max(1, int(np.max(np.diff(offsets), initial=0)))
 
 
-@nb.njit(cache=True)
-def fit_tracks(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
-               outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
-               out_ndf, out_n_outliers):
+@nb.njit(cache=True, inline="always")
+def _fit_tracks_loop(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                     outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                     out_ndf, out_n_outliers):
     """Fit every track of a CSR batch with `fitter`, removing outliers.
 
     Node arrays: node_z [mm] (n), node_n_meas (1 or 2), node_hx/node_hy (n, 2) the
@@ -165,3 +188,24 @@ def fit_tracks(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, n
         out_chi2[t] = chi2 if status == STATUS_OK else np.nan
         out_ndf[t] = ndf
         out_n_outliers[t] = n_out
+
+
+@nb.njit(cache=True)
+def fit_tracks(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+               outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+               out_ndf, out_n_outliers):
+    """The track loop (`_fit_tracks_loop`) for any fitter."""
+    _fit_tracks_loop(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                     outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                     out_ndf, out_n_outliers)
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def fit_tracks_no_refcount(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds,
+                           seed_covs, outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active,
+                           out_status, out_chi2, out_ndf, out_n_outliers):
+    """The track loop (`_fit_tracks_loop`) without reference counting, for fitters that
+    allocate nothing (`register_fitter`)."""
+    _fit_tracks_loop(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                     outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                     out_ndf, out_n_outliers)

@@ -90,6 +90,7 @@ from pkf.fit.propagate import (
 )
 from pkf.fit.seed import TRACK_VELO
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
+from pkf.jit import NO_REFCOUNT
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 
 #: ACTS Gx2FitterOptions defaults (seeds/002).
@@ -130,7 +131,8 @@ class ScatteringAngles(NamedTuple):
     plane, jac[k] (5×5) the step's Jacobian; for the plane slots p (plane index
     plane_lo + p) crossed so far in this step, from p_first = cursor[1], their G_p
     (g, 5×2 each, effect of θ_p on the state downstream) and Highland widths theta0
-    (0: no material crossed there); seg, tmp 5×5 scratch. Built once per trajectory."""
+    (0: no material crossed there); seg, tmp 5×5 scratch, stages (4, 5, 5) the RK stages'
+    scratch. Built once per trajectory."""
 
     node_state: np.ndarray
     jac: np.ndarray
@@ -141,6 +143,7 @@ class ScatteringAngles(NamedTuple):
     plane_lo: int
     seg: np.ndarray
     tmp: np.ndarray
+    stages: np.ndarray
 
 
 @nb.njit(cache=True, inline="always")
@@ -149,7 +152,7 @@ def _angles_transport(actor, ext, z_from, z_to, crossed):
     if z_to == z_from:
         return STATUS_OK
     k = actor.cursor[0]
-    if not rk4_segment(ext, actor.node_state[k], z_from, z_to, actor.seg, actor.jac[k], actor.tmp):
+    if not rk4_segment(ext, actor.node_state[k], z_from, z_to, actor.seg, actor.jac[k], actor.tmp, actor.stages):
         return STATUS_EXTRAPOLATION_FAILED
     p_first = actor.cursor[1]
     for p in range(p_first, p_first + crossed):
@@ -200,17 +203,18 @@ register_actor(ScatteringAngles, _angles_transport, _angles_interact)
 _propagate_angles = propagator(_angles_transport, _angles_interact)
 
 
-@nb.njit(cache=True)
-def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, step_plane, seg, tmp, cursor):
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, step_plane, seg, tmp, cursor, stages):
     """Trajectory of (α, θ): node states, step Jacobians jac[k] (node k−1 → k), for each
     plane slot p (plane index plane_lo + p) its G_p (5×2, effect of θ_p on the state at
     the next node) and Highland width theta0[p] (0: no material crossed there), and the
-    slots of step k in step_plane[k]…step_plane[k+1]−1; cursor (2) int scratch. Returns
+    slots of step k in step_plane[k]…step_plane[k+1]−1; cursor (2) int scratch, stages
+    (4, 5, 5) the RK stages' scratch. Returns
     a status code."""
     copy5(alpha, node_state[0])
     step_plane[0] = 0
     step_plane[1] = 0
-    actor = ScatteringAngles(node_state, jac, g, theta, theta0, cursor, plane_lo, seg, tmp)
+    actor = ScatteringAngles(node_state, jac, g, theta, theta0, cursor, plane_lo, seg, tmp, stages)
     for k in range(1, n):
         copy5(node_state[k - 1], node_state[k])
         set_identity(jac[k])
@@ -225,7 +229,7 @@ def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, st
     return STATUS_OK
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _chi2(node_state, n, n_meas, hx, hy, m, sigma, active, theta, theta0, n_slots):
     """χ² of a trajectory: measurement residuals plus the angles' priors."""
     chi2 = 0.0
@@ -245,7 +249,7 @@ def _chi2(node_state, n, n_meas, hx, hy, m, sigma, active, theta, theta0, n_slot
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _solve(n, n_meas, hx, hy, m, sigma, active, node_state, jac, g, theta, theta0, step_plane,
            gain, offset, s_inv, d_alpha, d_theta, node_cov, info, vec, yg, tmp, tmp2, tmp3, lu, spd_vec,
            qop_weight=0.0, qop_prior=0.0):
@@ -400,6 +404,7 @@ class Gx2fFitter(NamedTuple):
     lu: np.ndarray
     spd_vec: np.ndarray
     seg: np.ndarray
+    stages: np.ndarray
     qop_weight: np.ndarray
     qop_prior: np.ndarray
 
@@ -420,11 +425,11 @@ def gx2f_fitter(ext, n_nodes: int, n_tracks: int, max_updates: int = MAX_UPDATES
         np.zeros((slots, 5, 2)), np.zeros((slots, 2)), np.zeros(slots), np.empty((slots, 2, 5)),
         np.empty((slots, 2)), np.empty((slots, 2, 2)), np.zeros((slots, 2)), np.empty(5), np.empty(5),
         np.empty((5, 5)), np.empty(5), np.empty((5, 2)), np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5)),
-        np.empty((5, 5)), np.empty(10), np.empty((5, 5)),
+        np.empty((5, 5)), np.empty(10), np.empty((5, 5)), np.empty((4, 5, 5)),
         np.ascontiguousarray(qop_weight, dtype=np.float64), np.ascontiguousarray(qop_prior, dtype=np.float64))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _gx2f_begin(f, t, seed):
     """Start from α = seed, θ = 0; STATUS_NO_SEED for a non-finite seed."""
     f.out_iterations[t] = 0
@@ -439,7 +444,7 @@ def _gx2f_begin(f, t, seed):
     return STATUS_OK
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
     """Gauss–Newton from the current (α, θ) (module docstring): node states of the final
     trajectory and their covariances into out_state/out_cov; returns (status, χ²)."""
@@ -447,7 +452,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
     plane_lo = search_sorted(f.ext.plane_z, z[0], True)
     chi2 = np.nan
     status = _propagate(f.ext, f.alpha, f.theta, z, n, plane_lo, f.node_state, f.jac, f.g, f.theta0, f.step_plane,
-                        f.seg, f.tmp, f.cursor)
+                        f.seg, f.tmp, f.cursor, f.stages)
     if status != STATUS_OK:
         return status, chi2
     n_slots = f.step_plane[n] if n > 1 else 0
@@ -470,7 +475,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
             f.theta[p, 1] += f.d_theta[p, 1]
         updates += 1
         status = _propagate(f.ext, f.alpha, f.theta, z, n, plane_lo, f.node_state, f.jac, f.g, f.theta0,
-                            f.step_plane, f.seg, f.tmp, f.cursor)
+                            f.step_plane, f.seg, f.tmp, f.cursor, f.stages)
         if status != STATUS_OK:
             break
         if f.step_plane[n] != n_slots:  # (cannot happen: the plane range is fixed by z)
@@ -488,7 +493,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
     return status, chi2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _gx2f_end(f, t, lo, hi, status, out_state, out_cov):
     """A failed track has NaN states and covariances and is not converged."""
     if status != STATUS_OK:
@@ -497,7 +502,7 @@ def _gx2f_end(f, t, lo, hi, status, out_state, out_cov):
         f.out_converged[t] = False
 
 
-register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end)
+register_fitter(Gx2fFitter, _gx2f_begin, _gx2f_fit, _gx2f_end, allocates=False)
 
 
 # ----------------------------------------------------------------------------------

@@ -75,6 +75,7 @@ from pkf.physics.linalg import (
     zero55,
 )
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
+from pkf.jit import NO_REFCOUNT
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -204,7 +205,7 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
     copy5(tmp_vec, vec)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_reference, ref,
               pred, pred_cov, filt, filt_cov, jac, noise, offset, smoother, out_state, out_cov,
               work, mats, vec5, perm):
@@ -268,7 +269,7 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     return status, chi2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, jac, noise,
                                  offset, out_state, out_cov, mats, vec5, perm):
     """Backward information filter and weighted-mean combination (see module docstring)."""
@@ -325,7 +326,7 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
     return STATUS_OK
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec, perm):
     """Rauch–Tung–Striebel smoother over the forward pass (the alternative combination)."""
     vec5 = vec[:5]
@@ -429,7 +430,7 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
     return status, chi2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _keep_stages(f, lo, hi):
     """Copy the forward filter's scratch of nodes 0…hi−lo−1 into rows lo:hi of f.stages."""
     s = f.stages
@@ -447,4 +448,4 @@ def _kalman_end(f, t, lo, hi, status, out_state, out_cov):
         _keep_stages(f, lo, hi)
 
 
-register_fitter(KalmanFitter, _kalman_begin, _kalman_fit, _kalman_end)
+register_fitter(KalmanFitter, _kalman_begin, _kalman_fit, _kalman_end, allocates=False)

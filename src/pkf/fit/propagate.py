@@ -50,7 +50,7 @@ from pkf.physics.materials import (
     path_length_x0,
     scattering_noise,
 )
-from pkf.physics.transport import rk4_propagate_jacobian
+from pkf.physics.transport import rk4_transport_jacobian
 
 #: Largest |tx|, |ty| a transported state may reach (the simulation envelope, docs/physics.md#simulation).
 MAX_SLOPE = 10.0
@@ -136,14 +136,13 @@ def in_envelope(state):
 
 
 @nb.njit(cache=True, inline="always")
-def rk4_segment(ext, state, z_from, z_to, seg, jac, tmp):
+def rk4_segment(ext, state, z_from, z_to, seg, jac, tmp, stages):
     """RK4 of `state` (x, y, tx, ty, q/p) from z_from to z_to ≠ z_from [mm] through the
-    field; seg receives the segment's Jacobian S and jac ← S·jac (tmp 5×5 scratch).
+    field, in place; seg receives the segment's Jacobian S and jac ← S·jac (tmp 5×5
+    scratch, stages (4, ≥4, 5) the RK stages' scratch, `rk4_transport_jacobian`).
     False if the state leaves the envelope (`in_envelope`)."""
-    new = rk4_propagate_jacobian(state, z_from, z_to, ext.max_step, ext.field_kind, ext.field_params,
-                                 ext.field_grid, seg)
-    for i in range(5):
-        state[i] = new[i]
+    rk4_transport_jacobian(state, z_from, z_to, ext.max_step, ext.field_kind, ext.field_params, ext.field_grid,
+                           seg, stages)
     if not in_envelope(state):
         return False
     matmul55(seg, jac, tmp)
@@ -222,8 +221,9 @@ def add_plane_material(ext, k, state, direction, jac, noise):
 class KalmanMaterial(NamedTuple):
     """Actor of a Kalman extrapolation: `state` (5) transported in place, `jac` (5×5)
     accumulating the transport Jacobian, `noise` (5×5) the process noise Q at the end
-    point (C_out = F·C·Fᵀ + Q), work (≥ 3, 5, 5) scratch. (Actors hold few arrays: each
-    is reference-counted when the actor is built, once per propagation.)"""
+    point (C_out = F·C·Fᵀ + Q), work (6, 5, 5) scratch. (Built once per propagation;
+    the Kalman core is compiled without reference counting, `pkf.jit.NO_REFCOUNT`, so
+    building it costs no atomic operations.)"""
 
     state: np.ndarray
     jac: np.ndarray
@@ -233,16 +233,16 @@ class KalmanMaterial(NamedTuple):
 
 @nb.njit(cache=True, inline="always")
 def _kalman_transport(actor, ext, z_from, z_to, crossed):
-    """RK4 segment; jac ← S·jac, noise ← S·noise·Sᵀ."""
+    """RK4 segment; jac ← S·jac, noise ← S·noise·Sᵀ (work[0] S, work[1] scratch, work[2:6]
+    the RK stages)."""
     if z_to == z_from:
         return STATUS_OK
-    seg = actor.work[0]
-    tmp = actor.work[1]
-    tmp2 = actor.work[2]
-    if not rk4_segment(ext, actor.state, z_from, z_to, seg, actor.jac, tmp):
+    work = actor.work
+    seg = work[0]
+    tmp = work[1]
+    if not rk4_segment(ext, actor.state, z_from, z_to, seg, actor.jac, tmp, work[2:6]):
         return STATUS_EXTRAPOLATION_FAILED
-    sandwich(seg, actor.noise, tmp, tmp2)
-    copy55(tmp2, actor.noise)
+    sandwich(seg, actor.noise, tmp, actor.noise)  # in place: sandwich reads c only into tmp
     return STATUS_OK
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from pkf.fit.beamline import beamline_states
 from pkf.fit.candidates import Candidates
-from pkf.fit.driver import fit_tracks, max_nodes
+from pkf.fit.driver import max_nodes, track_loop
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
@@ -250,7 +250,7 @@ def run_fitter(fitter, batch: TrackBatch, options: FitOptions, seeds: np.ndarray
                result: FitResult) -> None:
     """Fit every track of `batch` with `fitter` (a registered fitter tuple, `pkf.fit.driver`)
     into `result`, with the outlier cut and removals of `options`."""
-    fit_tracks(fitter, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+    track_loop(fitter)(fitter, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
                np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
                options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
                result.node_chi2, result.node_active, result.status, result.chi2, result.ndf, result.n_outliers)

@@ -18,6 +18,8 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
+from pkf.jit import NO_REFCOUNT
+
 FIELD_UNIFORM = 0
 FIELD_DIPOLE = 1
 FIELD_MAP = 2
@@ -100,7 +102,7 @@ def _logistic_derivatives(s, lam):
     return e, d1, d2, d3
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _dipole_profile(params, z):
     """On-axis profile b(z) [T] and its derivatives b′, b″, b‴ [T/mm^n]."""
     b0 = params[_DIPOLE_B0]
@@ -115,7 +117,7 @@ def _dipole_profile(params, z):
     return b, b1, b2, b3
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _dipole_at(params, x, y, z):
     """B = −∇Φ of the analytic dipole potential (docs/geometry.md#field)."""
     b, b1, b2, b3 = _dipole_profile(params, z)
@@ -126,7 +128,7 @@ def _dipole_at(params, x, y, z):
     return bx, by, bz
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def _map_at(params, grid, x, y, z):
     """Trilinear interpolation of the sampled field; outside the grid the edge value;
     NaN for a non-finite position (never an out-of-range memory read)."""
@@ -162,7 +164,7 @@ def _map_at(params, grid, x, y, z):
     return out0, out1, out2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def field_at(kind, params, grid, x, y, z):
     """Field (bx, by, bz) [T] at (x, y, z) [mm] for any model kind."""
     if kind == FIELD_DIPOLE:

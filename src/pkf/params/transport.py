@@ -37,7 +37,7 @@ import numpy as np
 from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
 from pkf.physics.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
-from pkf.physics.transport import rk4_propagate_jacobian
+from pkf.physics.transport import rk4_transport_jacobian
 
 TRANSPORT_OK = 0
 TRANSPORT_FAILED = 2  # an unphysical step (|tx/N| ≥ 1 after the VELO→UT kink, NaN), a bad table
@@ -92,26 +92,28 @@ def _layer_of(layer_z, z):
 
 
 @nb.njit(cache=True)
-def _rk4_fallback(field_kind, field_params, field_grid, state, z0, z1, seg_state, seg_jac):
+def _rk4_fallback(field_kind, field_params, field_grid, seg_state, z0, z1, seg_jac, stages):
     """The UT→SciFi step by RK4 (with its Jacobian) through the field map, for states below
-    the table's p_min: seg_state ← state transported from z0 to z1 [mm]. TRANSPORT_FAILED if
-    the track leaves the envelope (|tx|, |ty| > 10 or not finite: it curls in the magnet)."""
-    out = rk4_propagate_jacobian(state, z0, z1, FALLBACK_MAX_STEP, field_kind, field_params, field_grid, seg_jac)
+    the table's p_min: seg_state transported in place from z0 to z1 [mm] (stages: the RK
+    stages' scratch, `rk4_transport_jacobian`). TRANSPORT_FAILED if the track leaves the
+    envelope (|tx|, |ty| > 10 or not finite: it curls in the magnet)."""
+    rk4_transport_jacobian(seg_state, z0, z1, FALLBACK_MAX_STEP, field_kind, field_params, field_grid, seg_jac,
+                           stages)
     for i in range(5):
-        if not math.isfinite(out[i]):
+        if not math.isfinite(seg_state[i]):
             return TRANSPORT_FAILED
-        seg_state[i] = out[i]
-    if abs(out[2]) > 10.0 or abs(out[3]) > 10.0:
+    if abs(seg_state[2]) > 10.0 or abs(seg_state[3]) > 10.0:
         return TRANSPORT_FAILED
     return TRANSPORT_OK
 
 
 @nb.njit(cache=True, inline="always")
 def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac, field_kind, field_params,
-           field_grid):
+           field_grid, stages):
     """One paper step of `kind` with parameters `p`; returns a status. Below the UT→SciFi
-    table's p_min the step is RK4 through the field map (`_rk4_fallback`) when the context
-    has one (field_kind ≥ 0): the table's polynomials are not valid there."""
+    table's p_min the step is RK4 through the field map (`_rk4_fallback`, stages its
+    scratch) when the context has one (field_kind ≥ 0): the table's polynomials are not
+    valid there."""
     if kind == STEP_VELO:
         velo_step(p, cur_state, z0, z1, seg_state, seg_jac)
     elif kind == STEP_VELO_TO_UT:
@@ -123,13 +125,13 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac, f
         # mean energy lost upstream of the magnet.
         qop = cur_state[4]
         shrink = 1.0 - p[0] * abs(qop)
-        seg_state[:] = cur_state
+        copy5(cur_state, seg_state)
         seg_state[4] = qop / shrink
         status = ut_to_scifi_extrapolate(uts_meta, uts_coef, seg_state, seg_state, seg_jac)
         if status == TRANSPORT_BELOW_P_MIN and field_kind >= 0:
-            seg_state[:] = cur_state
+            copy5(cur_state, seg_state)
             seg_state[4] = qop / shrink
-            status = _rk4_fallback(field_kind, field_params, field_grid, seg_state, z0, z1, seg_state, seg_jac)
+            status = _rk4_fallback(field_kind, field_params, field_grid, seg_state, z0, z1, seg_jac, stages)
         if status != TRANSPORT_OK:
             return status  # TRANSPORT_BELOW_P_MIN, or TRANSPORT_FAILED for a bad table
         dqop = 1.0 / (shrink * shrink)
@@ -205,7 +207,7 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
         kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type, cur, b)
         status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
                         layer_z[cur], layer_z[nxt], seg_state, seg_jac, ext.field_kind, ext.field_params,
-                        ext.field_grid)
+                        ext.field_grid, work[1:5])  # work[1:5] is free until step_noise
         if status != TRANSPORT_OK:
             return status
         step_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_jac, seg_noise)

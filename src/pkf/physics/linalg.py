@@ -12,6 +12,8 @@ import math
 
 import numba as nb
 
+from pkf.jit import NO_REFCOUNT
+
 
 @nb.njit(cache=True, inline="always")
 def copy5(src, dst):
@@ -116,7 +118,8 @@ def add_matvec5(x, a, v, out):
 
 @nb.njit(cache=True, inline="always")
 def sandwich(f, c, tmp, out):
-    """out = f·c·fᵀ (5×5), symmetrised; tmp is 5×5 scratch."""
+    """out = f·c·fᵀ (5×5), symmetrised; tmp is 5×5 scratch. out may be c (c is read only
+    into tmp), not f or tmp."""
     for i in range(5):
         for j in range(5):
             s = 0.0
@@ -190,7 +193,7 @@ def invert_spd(a, out, work, vec):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def is_positive_definite_diag(a):
     """True if every diagonal element of a 5×5 matrix is positive and finite."""
     for i in range(5):
@@ -199,7 +202,7 @@ def is_positive_definite_diag(a):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def search_sorted(values, x, right):
     """np.searchsorted(values, x, side='right' if right else 'left') by bisection.
 

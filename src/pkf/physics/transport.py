@@ -36,6 +36,7 @@ import numba as nb
 import numpy as np
 
 from pkf.geometry.field import FIELD_UNIFORM, field_at
+from pkf.jit import NO_REFCOUNT
 
 C_LIGHT = 0.299792458  # κ, MeV/(T·mm): curvature [1/mm] = κ·B[T]/p[MeV]
 FIELD_GRADIENT_STEP = 1e-3  # mm, central-difference step for ∂B/∂x and ∂B/∂y
@@ -70,7 +71,7 @@ def rk4_propagate(state, z_from, z_to, max_step, field_kind, field_params, field
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def rk4_propagate_scalar(x, y, tx, ty, qop, z_from, z_to, max_step,
                          field_kind, field_params, field_grid):
     """Allocation-free core of `rk4_propagate`: returns the new (x, y, tx, ty)."""
@@ -114,12 +115,12 @@ def rk4_propagate_scalar(x, y, tx, ty, qop, z_from, z_to, max_step,
     return x, y, tx, ty
 
 
-@nb.njit(cache=True)
-def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid, fjac):
-    """Slope derivatives at one RK stage and their partials, written into fjac (2×5).
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid):
+    """Slope derivatives at one RK stage and their partials.
 
-    Returns (dtx/dz, dty/dz); fjac[0, :] = ∂(dtx/dz)/∂(x, y, tx, ty, qop),
-    fjac[1, :] = ∂(dty/dz)/∂(x, y, tx, ty, qop).
+    Returns (dtx/dz, dty/dz, row_tx, row_ty) with row_tx = ∂(dtx/dz)/∂(x, y, tx, ty, qop)
+    and row_ty = ∂(dty/dz)/∂(x, y, tx, ty, qop) (5-tuples: no scratch array).
     """
     bx, by, bz = field_at(field_kind, field_params, field_grid, x, y, z)
     n = math.sqrt(1.0 + tx * tx + ty * ty)
@@ -134,19 +135,19 @@ def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid, 
     dax_dty = tx * bx + bz
     day_dtx = -ty * by - bz
     day_dty = 2.0 * ty * bx - tx * by
-    fjac[0, 2] = kq * (tx / n * ax + n * dax_dtx)
-    fjac[0, 3] = kq * (ty / n * ax + n * dax_dty)
-    fjac[1, 2] = kq * (tx / n * ay + n * day_dtx)
-    fjac[1, 3] = kq * (ty / n * ay + n * day_dty)
+    j02 = kq * (tx / n * ax + n * dax_dtx)
+    j03 = kq * (ty / n * ax + n * dax_dty)
+    j12 = kq * (tx / n * ay + n * day_dtx)
+    j13 = kq * (ty / n * ay + n * day_dty)
     # ∂/∂qop
-    fjac[0, 4] = C_LIGHT * n * ax
-    fjac[1, 4] = C_LIGHT * n * ay
+    j04 = C_LIGHT * n * ax
+    j14 = C_LIGHT * n * ay
     # ∂/∂x, ∂/∂y through the field gradient (central differences)
     if field_kind == FIELD_UNIFORM:
-        fjac[0, 0] = 0.0
-        fjac[0, 1] = 0.0
-        fjac[1, 0] = 0.0
-        fjac[1, 1] = 0.0
+        j00 = 0.0
+        j01 = 0.0
+        j10 = 0.0
+        j11 = 0.0
     else:
         s = FIELD_GRADIENT_STEP
         inv2s = 0.5 / s
@@ -155,25 +156,26 @@ def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid, 
         gbx = (pbx - mbx) * inv2s
         gby = (pby - mby) * inv2s
         gbz = (pbz - mbz) * inv2s
-        fjac[0, 0] = kqn * (tx * ty * gbx - (1.0 + tx * tx) * gby + ty * gbz)
-        fjac[1, 0] = kqn * ((1.0 + ty * ty) * gbx - tx * ty * gby - tx * gbz)
+        j00 = kqn * (tx * ty * gbx - (1.0 + tx * tx) * gby + ty * gbz)
+        j10 = kqn * ((1.0 + ty * ty) * gbx - tx * ty * gby - tx * gbz)
         pbx, pby, pbz = field_at(field_kind, field_params, field_grid, x, y + s, z)
         mbx, mby, mbz = field_at(field_kind, field_params, field_grid, x, y - s, z)
         gbx = (pbx - mbx) * inv2s
         gby = (pby - mby) * inv2s
         gbz = (pbz - mbz) * inv2s
-        fjac[0, 1] = kqn * (tx * ty * gbx - (1.0 + tx * tx) * gby + ty * gbz)
-        fjac[1, 1] = kqn * ((1.0 + ty * ty) * gbx - tx * ty * gby - tx * gbz)
-    return ftx, fty
+        j01 = kqn * (tx * ty * gbx - (1.0 + tx * tx) * gby + ty * gbz)
+        j11 = kqn * ((1.0 + ty * ty) * gbx - tx * ty * gby - tx * gbz)
+    return ftx, fty, (j00, j01, j02, j03, j04), (j10, j11, j12, j13, j14)
 
 
-@nb.njit(cache=True)
-def _stage_derivative(fjac, d, kprev, c, kout):
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _stage_derivative(row_tx, row_ty, d, kprev, c, kout):
     """kout = ∂k_i/∂s0 for a stage evaluated at s + c·k_{i−1}.
 
-    d = ∂s/∂s0 at the start of the step (rows 0–3; row 4 is e4), kprev = ∂k_{i−1}/∂s0
-    (rows 0–3), c = h·a_i (0 for the first stage). The position rows of k are the slope
-    rows of the stage point; the slope rows are fjac·(∂ stage point/∂s0).
+    row_tx, row_ty: the stage's partials (`_stage_jacobian`); d = ∂s/∂s0 at the start of
+    the step (rows 0–3; row 4 is e4), kprev = ∂k_{i−1}/∂s0 (rows 0–3), c = h·a_i (0 for
+    the first stage). The position rows of k are the slope rows of the stage point; the
+    slope rows are the partials times ∂(stage point)/∂s0.
     """
     for j in range(5):
         if c == 0.0:
@@ -189,24 +191,19 @@ def _stage_derivative(fjac, d, kprev, c, kout):
         m4 = 1.0 if j == 4 else 0.0
         kout[0, j] = m2
         kout[1, j] = m3
-        kout[2, j] = (fjac[0, 0] * m0 + fjac[0, 1] * m1 + fjac[0, 2] * m2
-                      + fjac[0, 3] * m3 + fjac[0, 4] * m4)
-        kout[3, j] = (fjac[1, 0] * m0 + fjac[1, 1] * m1 + fjac[1, 2] * m2
-                      + fjac[1, 3] * m3 + fjac[1, 4] * m4)
+        kout[2, j] = (row_tx[0] * m0 + row_tx[1] * m1 + row_tx[2] * m2
+                      + row_tx[3] * m3 + row_tx[4] * m4)
+        kout[3, j] = (row_ty[0] * m0 + row_ty[1] * m1 + row_ty[2] * m2
+                      + row_ty[3] * m3 + row_ty[4] * m4)
 
 
-@nb.njit(cache=True)
-def rk4_propagate_jacobian(state, z_from, z_to, max_step,
-                           field_kind, field_params, field_grid, jac_out):
-    """`rk4_propagate` plus the transport Jacobian ∂state_out/∂state_in written to jac_out (5×5).
-
-    Same steps and result as `rk4_propagate`. The Jacobian is integrated alongside the
-    state as the derivative of the discrete RK4 map (see the module docstring); the
-    qop row is (0, 0, 0, 0, 1). Scratch memory is allocated once per call, none per step.
-    """
-    out = np.empty(5)
-    work = np.zeros((4, 4, 5))  # k1..k4 derivatives, rows 0–3 (x, y, tx, ty)
-    fjac = np.zeros((2, 5))
+@nb.njit(cache=True, **NO_REFCOUNT)
+def rk4_transport_jacobian(state, z_from, z_to, max_step, field_kind, field_params, field_grid, jac_out,
+                           stages):
+    """`rk4_propagate_jacobian` in place, allocating nothing: `state` (x, y, tx, ty, qop) is
+    transported from z_from to z_to [mm] (qop unchanged) and jac_out (5×5) receives
+    ∂state_out/∂state_in. stages (≥ 4, ≥ 4, 5) is scratch for the derivatives of the four
+    RK stages (rows 0–3 of stages[0…3]); it must not overlap state or jac_out."""
     x = state[0]
     y = state[1]
     tx = state[2]
@@ -220,39 +217,39 @@ def rk4_propagate_jacobian(state, z_from, z_to, max_step,
         nsteps = max(1, int(math.ceil(abs(dz) / max_step)))
         h = dz / nsteps
         z = z_from
-        k1 = work[0]
-        k2 = work[1]
-        k3 = work[2]
-        k4 = work[3]
+        k1 = stages[0]
+        k2 = stages[1]
+        k3 = stages[2]
+        k4 = stages[3]
         for _ in range(nsteps):
             # stage 1
-            k1tx, k1ty = _stage_jacobian(x, y, z, tx, ty, qop,
-                                         field_kind, field_params, field_grid, fjac)
-            _stage_derivative(fjac, jac_out, k1, 0.0, k1)
+            k1tx, k1ty, row_tx, row_ty = _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params,
+                                                         field_grid)
+            _stage_derivative(row_tx, row_ty, jac_out, k1, 0.0, k1)
             # stage 2
             x2 = x + 0.5 * h * tx
             y2 = y + 0.5 * h * ty
             tx2 = tx + 0.5 * h * k1tx
             ty2 = ty + 0.5 * h * k1ty
-            k2tx, k2ty = _stage_jacobian(x2, y2, z + 0.5 * h, tx2, ty2, qop,
-                                         field_kind, field_params, field_grid, fjac)
-            _stage_derivative(fjac, jac_out, k1, 0.5 * h, k2)
+            k2tx, k2ty, row_tx, row_ty = _stage_jacobian(x2, y2, z + 0.5 * h, tx2, ty2, qop,
+                                                         field_kind, field_params, field_grid)
+            _stage_derivative(row_tx, row_ty, jac_out, k1, 0.5 * h, k2)
             # stage 3
             x3 = x + 0.5 * h * tx2
             y3 = y + 0.5 * h * ty2
             tx3 = tx + 0.5 * h * k2tx
             ty3 = ty + 0.5 * h * k2ty
-            k3tx, k3ty = _stage_jacobian(x3, y3, z + 0.5 * h, tx3, ty3, qop,
-                                         field_kind, field_params, field_grid, fjac)
-            _stage_derivative(fjac, jac_out, k2, 0.5 * h, k3)
+            k3tx, k3ty, row_tx, row_ty = _stage_jacobian(x3, y3, z + 0.5 * h, tx3, ty3, qop,
+                                                         field_kind, field_params, field_grid)
+            _stage_derivative(row_tx, row_ty, jac_out, k2, 0.5 * h, k3)
             # stage 4
             x4 = x + h * tx3
             y4 = y + h * ty3
             tx4 = tx + h * k3tx
             ty4 = ty + h * k3ty
-            k4tx, k4ty = _stage_jacobian(x4, y4, z + h, tx4, ty4, qop,
-                                         field_kind, field_params, field_grid, fjac)
-            _stage_derivative(fjac, jac_out, k3, h, k4)
+            k4tx, k4ty, row_tx, row_ty = _stage_jacobian(x4, y4, z + h, tx4, ty4, qop,
+                                                         field_kind, field_params, field_grid)
+            _stage_derivative(row_tx, row_ty, jac_out, k3, h, k4)
             # combine state and Jacobian
             x = x + h / 6.0 * (tx + 2.0 * tx2 + 2.0 * tx3 + tx4)
             y = y + h / 6.0 * (ty + 2.0 * ty2 + 2.0 * ty3 + ty4)
@@ -264,11 +261,25 @@ def rk4_propagate_jacobian(state, z_from, z_to, max_step,
                         k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j]
                     )
             z = z + h
-    out[0] = x
-    out[1] = y
-    out[2] = tx
-    out[3] = ty
-    out[4] = qop
+    state[0] = x
+    state[1] = y
+    state[2] = tx
+    state[3] = ty
+
+
+@nb.njit(cache=True)
+def rk4_propagate_jacobian(state, z_from, z_to, max_step,
+                           field_kind, field_params, field_grid, jac_out):
+    """`rk4_propagate` plus the transport Jacobian ∂state_out/∂state_in written to jac_out (5×5).
+
+    Same steps and result as `rk4_propagate`. The Jacobian is integrated alongside the
+    state as the derivative of the discrete RK4 map (see the module docstring); the
+    qop row is (0, 0, 0, 0, 1). Returns a new array; kernels that call it per step use
+    `rk4_transport_jacobian` (in place, with the caller's scratch) instead.
+    """
+    out = state.copy()
+    rk4_transport_jacobian(out, z_from, z_to, max_step, field_kind, field_params, field_grid, jac_out,
+                           np.empty((4, 4, 5)))
     return out
 
 
