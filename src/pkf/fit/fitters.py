@@ -60,8 +60,8 @@ REFERENCE_ITERATIONS = 2
 #: ν = 7.6 (seed 31, 12,765 real long tracks), q/p pull core 1 → 2 passes 1.14 → 1.07 at 1.5–3 GeV,
 #: 1.11 → 1.07 at 3–5, 1.06 → 1.06 at 5–10, 0.99 → 0.99 at 10–100; δp/p core 0.235 → 0.221 %,
 #: 0.238 → 0.232 %; the first-hit q/p of one pass is 0.81σ RMS from two passes' at 1.5–3 GeV
-#: (0.24σ at 3–5): the first pass linearises at the forward *filtered* states, whose slopes and
-#: positions before the magnet, not their q/p, are what the second pass corrects.
+#: (0.24σ at 3–5). With the seed's q/p this close, what the second pass still corrects is the
+#: first pass's linearisation at the forward *filtered* states (not measured further).
 PARAMETRIZED_ITERATIONS = 2
 
 
