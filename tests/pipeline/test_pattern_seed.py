@@ -9,11 +9,9 @@ import numpy as np
 import pytest
 
 from pkf.fit.candidates import Candidates
-from pkf.fit.fitters import get_fitter
 from pkf.fit.seed import SEED_QOP_FRACTION, TRACK_LONG, TRACK_VELO
-from pkf.fit.tracks import FitOptions, TrackBatch, fit_batch, seed_batch
+from pkf.fit.tracks import TrackBatch, seed_batch
 from pkf.geometry import load_geometry
-from pkf.geometry.detector import SUBDETECTORS
 from pkf.params.parameter_set import load_parameters
 from pkf.pipeline.simulate import SimulationConfig, simulate_batch
 from pkf.pipeline.triplet_pattern import triplet_candidates
