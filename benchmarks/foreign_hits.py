@@ -163,7 +163,7 @@ def refits(sample: Sample) -> None:
     beamline = straight_line_extrapolator(g)
     print(f"refit of the {np.unique(sample.cand_track_index[in_sample]).size} real long candidates with a "
           f"foreign UT hit")
-    print(f"{'':45s}{_header()}")
+    print(f"{'':48s}{_header()}")
     for name, (select, rows) in variants.items():
         candidates = Candidates.from_hit_lists(sample.cand_event[select], sample.cand_track[select], rows[select])
         batch = TrackBatch.from_candidates(g, candidates, sample.layer, *sample.hit_columns)
@@ -181,7 +181,7 @@ def refits(sample: Sample) -> None:
             _, state, cov = result.locations["first_hit"]
             truth = production_qop if fitter.qop_at_production else local_qop
             pull = (state[:, 4] - truth) / np.sqrt(cov[:, 4, 4])
-            print(f"  {name:31s}{fitter_name:13s}{_cores(pull, 1.0 / np.abs(local_qop), result.status == 0)}")
+            print(f"  {name:33s}{fitter_name:13s}{_cores(pull, 1.0 / np.abs(local_qop), result.status == 0)}")
 
 
 def main(argv=None) -> int:
