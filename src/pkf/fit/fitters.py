@@ -55,7 +55,13 @@ REFERENCE_ITERATIONS = 2
 #: 1.03 at 5–10, 1.01 → 1.00 at 10–100 GeV; δp/p core 0.283 → 0.203 % at 1.5–3 GeV (reference
 #: 0.191 %), 0.237 → 0.217 % at 3–5 GeV (reference 0.219 %). On a 1.5–2.6 GeV π gun (341 long
 #: tracks): q/p pull 1.63 → 1.02, δp/p 0.295 → 0.207 % (reference 0.176 %). Cost: ×1.5–1.7 the
-#: parametrized fit's time.
+#: parametrized fit's time. Seeding from the pattern's q/p (`pkf.fit.seed.pattern_seed`, 0.21 %
+#: median error instead of the least-squares 0.65 %) does not make one pass enough: 60 events at
+#: ν = 7.6 (seed 31, 12,765 real long tracks), q/p pull core 1 → 2 passes 1.14 → 1.07 at 1.5–3 GeV,
+#: 1.11 → 1.07 at 3–5, 1.06 → 1.06 at 5–10, 0.99 → 0.99 at 10–100; δp/p core 0.235 → 0.221 %,
+#: 0.238 → 0.232 %; the first-hit q/p of one pass is 0.81σ RMS from two passes' at 1.5–3 GeV
+#: (0.24σ at 3–5). With the seed's q/p this close, what the second pass still corrects is the
+#: first pass's linearisation at the forward *filtered* states (not measured further).
 PARAMETRIZED_ITERATIONS = 2
 
 

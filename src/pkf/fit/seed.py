@@ -17,6 +17,11 @@ slope (the first measurements fix them), a 10% q/p prior, which the data outweig
 orders of magnitude for long tracks, widened by the least-squares q/p variance for
 tracks whose hits hardly measure q/p.
 
+The pattern recognition's estimate, where it hands one over (`pattern_seed`, the triplet
+pattern's VELO state and forward q/p), replaces this seed: on lhcb-like minimum bias (2 events
+at ν = 7.6, real long tracks) the pattern's q/p is off by 0.21 % (median), the least-squares
+kick's along a straight line by 0.65 %.
+
 Track types (`track_type_codes`, the ``track_type`` column of the chi2 table): ``long``
 (SciFi hits), ``upstream`` (VELO + UT: q/p from the small field integral before the UT, to
 ~15 %; their seed's q/p prior is 100 % wide, UPSTREAM_QOP_FRACTION, so that the fit's q/p
@@ -217,3 +222,37 @@ def seed_tracks(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sig
             # the hits measure q/p to ~15 % only: a 10 % prior centred on their own estimate
             # would count them twice (Kalman q/p pulls 2.0, the prior-free GX2F's 0.99)
             out_covs[t, 4, 4] = (UPSTREAM_QOP_FRACTION * out_states[t, 4]) ** 2 + out_qop_var[t]
+
+
+@nb.njit(cache=True)
+def pattern_seed(states, covs, qop_var, track_type, pattern_state, pattern_qop_var):
+    """Replace the least-squares seeds (states (T, 5), covs (T, 5, 5), qop_var (T), in place)
+    by the pattern recognition's estimate where it has one (pattern_state (T, 5) at each
+    track's first node, pattern_qop_var (T); NaN: none) and the least-squares seed exists.
+
+    Position and slopes: the pattern's (its VELO fit uses every VELO hit, the least-squares
+    line only the first three), the seed variances unchanged. q/p of long and upstream
+    tracks: the pattern's (the forward extension's fit through the parametrized field: median
+    error 0.21 % on real long tracks against 0.65 % for the least-squares kick), seed variance (f·q/p)² + the pattern's variance with f the track type's
+    fraction (SEED_QOP_FRACTION, UPSTREAM_QOP_FRACTION). Only the linearisation point of
+    the fit's first pass moves: the prior stays as loose as before. VELO-only tracks keep
+    the momentum assumption (`velo_qop_prior`, evaluated again at the pattern's slopes)."""
+    for t in range(states.shape[0]):
+        if not math.isfinite(qop_var[t]):
+            continue  # no least-squares seed: the track fails as before
+        line = pattern_state[t]
+        if (math.isfinite(line[0]) and math.isfinite(line[1]) and math.isfinite(line[2])
+                and math.isfinite(line[3])):
+            for i in range(4):
+                states[t, i] = line[i]
+            if track_type[t] == TRACK_VELO:
+                velo_qop_prior(states[t], covs[t])
+        if track_type[t] == TRACK_VELO or not (math.isfinite(line[4]) and pattern_qop_var[t] >= 0.0):
+            continue
+        fraction = UPSTREAM_QOP_FRACTION if track_type[t] == TRACK_UPSTREAM else SEED_QOP_FRACTION
+        states[t, 4] = line[4]
+        for i in range(5):
+            covs[t, i, 4] = 0.0
+            covs[t, 4, i] = 0.0
+        covs[t, 4, 4] = (fraction * line[4]) ** 2 + pattern_qop_var[t]
+        qop_var[t] = pattern_qop_var[t]

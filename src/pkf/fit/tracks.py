@@ -21,7 +21,7 @@ from pkf.fit.driver import max_nodes, track_loop
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
-from pkf.fit.seed import TRACK_LONG, seed_tracks, track_type_codes
+from pkf.fit.seed import TRACK_LONG, pattern_seed, seed_tracks, track_type_codes
 from pkf.geometry.detector import KIND_PIXEL, Geometry
 
 
@@ -32,7 +32,10 @@ class TrackBatch:
     offsets (T+1); per node: z [mm], layer, hit_row (row in the hits table), n_meas
     (1 strip, 2 pixel), hx/hy (n, 2) measurement directions, m (n, 2) measured values
     [mm], sigma (n, 2) errors [mm]; per track its type (`pkf.fit.seed.TRACK_*`; None:
-    every track long).
+    every track long) and the pattern recognition's estimate (`pkf.fit.candidates`):
+    pattern_state (T, 5) at the track's first node and pattern_qop_var (T), NaN where
+    the pattern has none (None: no estimate at all); `seed_batch` prefers it to the
+    least-squares seed.
     """
 
     offsets: np.ndarray
@@ -45,6 +48,8 @@ class TrackBatch:
     m: np.ndarray
     sigma: np.ndarray
     track_type: np.ndarray | None = None
+    pattern_state: np.ndarray | None = None
+    pattern_qop_var: np.ndarray | None = None
 
     @property
     def n_tracks(self) -> int:
@@ -58,7 +63,9 @@ class TrackBatch:
     def from_candidates(cls, geometry: Geometry, candidates: Candidates, layer: np.ndarray, u: np.ndarray,
                         v: np.ndarray, sigma_u: np.ndarray, sigma_v: np.ndarray) -> TrackBatch:
         """The nodes of `candidates` (a `Candidates`), track by track, sorted by z within a
-        track; hit columns (layer, u, v [mm], sigma_u, sigma_v [mm]) are indexed by its hit rows."""
+        track; hit columns (layer, u, v [mm], sigma_u, sigma_v [mm]) are indexed by its hit rows.
+        The pattern's state estimate, if any, is moved to each track's first node
+        (`pattern_state_at`); without one the pattern arrays are NaN."""
         track_index, hit_row, n_tracks = candidates.track_of_hit, candidates.hit_row, candidates.n_tracks
         layer_of = layer[hit_row].astype(np.int64)
         order = np.lexsort((geometry.layer_z[layer_of], track_index))
@@ -80,9 +87,24 @@ class TrackBatch:
         sigma[:, 0] = sigma_u[hit_row]
         m[pixel, 1] = v[hit_row][pixel]
         sigma[pixel, 1] = sigma_v[hit_row][pixel]
-        return cls(offsets, geometry.layer_z[layer_of].copy(), layer_of, hit_row,
-                   np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma,
-                   track_type_codes(geometry, offsets, layer_of))
+        z = geometry.layer_z[layer_of].copy()
+        first_z = z[np.minimum(offsets[:-1], max(z.size - 1, 0))] if z.size else np.zeros(n_tracks)
+        pattern_state, pattern_qop_var = pattern_state_at(candidates, first_z)
+        return cls(offsets, z, layer_of, hit_row, np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma,
+                   track_type_codes(geometry, offsets, layer_of), pattern_state, pattern_qop_var)
+
+
+def pattern_state_at(candidates: Candidates, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pattern's state estimate of each candidate moved to z (T) [mm] along its straight
+    line (the pattern's states are VELO states, and the VELO is straight to the precision
+    of a seed), and its q/p variance; all NaN if the pattern gave none."""
+    if not candidates.has_estimate:
+        return np.full((candidates.n_tracks, 5), np.nan), np.full(candidates.n_tracks, np.nan)
+    state = candidates.state.copy()
+    dz = z - candidates.state_z
+    state[:, 0] += state[:, 2] * dz
+    state[:, 1] += state[:, 3] * dz
+    return state, candidates.qop_var.copy()
 
 
 #: The Kalman core's code of each `KalmanOptions.smoother` name.
@@ -197,8 +219,9 @@ class FitResult:
 def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Seed states (T, 5) at each track's first node, seed covariances and q/p variances.
 
-    VELO-only tracks (``batch.track_type``) get the momentum assumption of
-    `pkf.fit.seed.velo_qop_prior`."""
+    The least-squares seed (`pkf.fit.seed.seed_tracks`), replaced by the pattern's estimate
+    where the batch has one (`pkf.fit.seed.pattern_seed`); VELO-only tracks
+    (``batch.track_type``) get the momentum assumption of `pkf.fit.seed.velo_qop_prior`."""
     seeds = np.empty((batch.n_tracks, 5))
     covs = np.empty((batch.n_tracks, 5, 5))
     qop_var = np.empty(batch.n_tracks)
@@ -207,6 +230,8 @@ def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.nda
         track_type = np.full(batch.n_tracks, TRACK_LONG, dtype=np.int64)
     seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
                 *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64))
+    if batch.pattern_state is not None:
+        pattern_seed(seeds, covs, qop_var, track_type, batch.pattern_state, batch.pattern_qop_var)
     return seeds, covs, qop_var
 
 

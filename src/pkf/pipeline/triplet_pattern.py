@@ -60,12 +60,14 @@ def _event_groups(event_id: np.ndarray, group_hits: int) -> list[tuple[int, int]
 
 
 def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, sigma_u, sigma_v):
-    """`triplet_candidates` of one group of whole events (rows index the group's arrays)."""
+    """`triplet_candidates` of one group of whole events (rows index the group's arrays):
+    per hit (event, track id, row) and per track, in the same order, the pattern's state
+    (T, 5) at state_z (T) and its q/p variance (T) (`_pattern_estimate`)."""
     velo = find_velo_tracks(event_id, layer, u, v, z, np.column_stack([sigma_u, sigma_v]), geometry)
     n_tracks = velo.event_id.size
     if n_tracks == 0:
         empty = np.zeros(0, dtype=np.int64)
-        return empty, empty, empty
+        return empty, empty, empty, np.zeros((0, 5)), np.zeros(0), np.zeros(0)
     state = np.column_stack([velo.x, velo.y, velo.tx, velo.ty])
     forward = extend_velo_tracks(velo.event_id, state, velo.z, event_id, layer, u, sigma_u, geometry,
                                  forward_extrapolator)
@@ -81,7 +83,21 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
     # track ids from 0 within each event (VELO tracks come sorted by event)
     first_of_event = np.searchsorted(velo.event_id, velo.event_id, side="left")
     track_id = track - first_of_event[track]
-    return track_event.astype(np.int64), track_id.astype(np.int64), rows.astype(np.int64)
+    return (track_event.astype(np.int64), track_id.astype(np.int64), rows.astype(np.int64),
+            *_pattern_estimate(velo, forward))
+
+
+def _pattern_estimate(velo, forward):
+    """The state the pattern hands to the fit, per VELO track (every VELO track is a
+    candidate, in this order): (x, y, tx, ty) of the VELO straight-line fit at its first
+    hit (z) and, where the forward extension carried it into the SciFi, the extension's
+    q/p (at production) and variance; NaN q/p elsewhere (the hits of an extension that was
+    not accepted are not in the candidate)."""
+    found = forward.found
+    qop = np.where(found, forward.qop, np.nan)
+    qop_var = np.where(found, forward.qop_var, np.nan)
+    state = np.column_stack([velo.x, velo.y, velo.tx, velo.ty, qop])
+    return state, np.asarray(velo.z, dtype=np.float64), qop_var
 
 
 def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.ndarray, layer: np.ndarray,
@@ -90,7 +106,8 @@ def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.nd
                        group_hits: int | None = None):
     """Candidates of the hits of a chunk of events (per-hit arrays, sorted by event).
 
-    Returns the `Candidates` (as `truth_candidates`), track ids from 0 within each event. Events with more than
+    Returns the `Candidates` (as `truth_candidates`, with the pattern's state estimate,
+    `_pattern_estimate`), track ids from 0 within each event. Events with more than
     `max_event_hits` (`MAX_EVENT_HITS`) hits get none (`crowded_events`); the others are
     searched in groups of whole events of at most `group_hits` (`GROUP_HITS`) hits
     (module docstring).
@@ -104,11 +121,12 @@ def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.nd
         columns = [c[rows_searched] for c in columns]
     parts = []
     for lo, hi in _event_groups(columns[0], group_hits):
-        ev, tr, rows = _group_candidates(geometry, forward_extrapolator, *(c[lo:hi] for c in columns))
-        parts.append((ev, tr, rows + lo))
+        ev, tr, rows, state, state_z, qop_var = _group_candidates(geometry, forward_extrapolator,
+                                                                  *(c[lo:hi] for c in columns))
+        parts.append((ev, tr, rows + lo, state, state_z, qop_var))
     if not parts:
         return Candidates.empty()
-    cand_event, cand_track, rows = (np.concatenate(p) for p in zip(*parts))
+    cand_event, cand_track, rows, state, state_z, qop_var = (np.concatenate(p) for p in zip(*parts))
     if rows_searched is not None:
         rows = rows_searched[rows]
-    return Candidates.from_hit_lists(cand_event, cand_track, rows)
+    return Candidates.from_hit_lists(cand_event, cand_track, rows, state, state_z, qop_var)
