@@ -14,6 +14,7 @@ from pkf.io.schemas import PULLS, STATES
 from pkf.cli import main
 from pkf.pipeline.report import run_report
 from pkf.params.gauss import gaussian_core
+from pkf.physics.constants import MASS_BS
 from pkf.report.metrics import CHI2_NDF_CUTS, P_EDGES_MEV
 
 
@@ -136,7 +137,7 @@ def test_bs_mass_from_all_kaons(bs_report):
     assert mass["n_candidates"] >= mass["n_signal_candidates"]
     fit = mass["fit"]
     assert fit["status"] == "ok", mass
-    assert abs(fit["mean"] - 5366.92) < 5 * fit["mean_error"] + 2.0
+    assert abs(fit["mean"] - MASS_BS) < 5 * fit["mean_error"] + 2.0
     assert 2.0 < fit["sigma"] < 60.0
 
 

@@ -16,6 +16,7 @@ from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_di
 from pkf.io.schemas import particle_key
 from pkf.io.reader import Dataset
 from pkf.io.stream import read_rows
+from pkf.physics.constants import PDG_BS, PDG_KAON, PDG_PHI
 from pkf.pipeline.inputs import STATE_NAMES, align_mc
 from pkf.pipeline.plan import plan_dataset
 from pkf.pipeline.progress import progress_bar
@@ -166,14 +167,14 @@ def _truth_of_part(geometry, dataset: Dataset) -> dict:
     grand_key = np.where(pfound, particle_key(ev_sorted, parent[ppos]), 0)
     gpos, gfound = lookup_sorted(p_key_sorted, grand_key)
     grand_pdg = np.where(pfound & gfound, pdg[gpos], 0)
-    is_kaon = signal & (np.abs(pdg) == 321) & (parent_pdg == 333) & (np.abs(grand_pdg) == 531)
-    bs = signal & (np.abs(pdg) == 531)
+    is_kaon = signal & (np.abs(pdg) == PDG_KAON) & (parent_pdg == PDG_PHI) & (np.abs(grand_pdg) == PDG_BS)
+    bs = signal & (np.abs(pdg) == PDG_BS)
     kaons_of = {}
     for k_key, g_key in zip(p_key_sorted[is_kaon], grand_key[is_kaon]):
         kaons_of.setdefault(int(g_key), []).append(int(k_key))
     quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
     return {"reco": reco, "p": p[pos], "eta": eta[pos], "quads": np.array(quads, dtype=np.int64).reshape(-1, 4),
-            "n_bs": int(bs.sum()), "kaons": p_key_sorted[np.abs(pdg) == 321]}
+            "n_bs": int(bs.sum()), "kaons": p_key_sorted[np.abs(pdg) == PDG_KAON]}
 
 
 def load_truths(runs: list[RunInput], progress=None) -> list[DatasetTruth | None]:
