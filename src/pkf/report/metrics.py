@@ -662,8 +662,9 @@ def _timing_section(run: RunInput, name: str) -> dict:
 # ----------------------------------------------------------------------------- main entry
 
 
-TYPE_CODES = (*TRACK_TYPES, "unknown")
-_FIRST_COLUMNS = ("p_true", *(f"res_{v}" for v in ("x", "y", "tx", "ty")), *(f"pull_{p}" for p in PULL_PARAMETERS))
+_PULL_COLUMNS = tuple(f"pull_{p}" for p in PULL_PARAMETERS)
+_FIRST_COLUMNS = ("p_true", *(f"res_{v}" for v in ("x", "y", "tx", "ty")), *_PULL_COLUMNS)
+_ALL_FIRST_COLUMNS = (*_FIRST_COLUMNS, "dp_over_p")
 _KAON_CHI2_COLUMNS = ("event_id", "track_id", "mc_particle_id", "match_fraction", "is_ghost")
 _KAON_STATE_COLUMNS = ("event_id", "track_id", "qop", "tx", "ty", "z")
 
@@ -703,7 +704,9 @@ class EntryTracks:
     found_any: list = field(default_factory=list)  # particle keys matched by any track
     rates_ok: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
     rates_any: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
-    first: dict = field(default_factory=lambda: {c: [] for c in (*_FIRST_COLUMNS, "dp_over_p", "type")})
+    # first-hit pull rows per track type: every column for long tracks (resolution and pulls),
+    # the pulls alone for the other types (their pull summaries); "unknown" rows are not kept
+    first: dict = field(default_factory=lambda: {kind: {c: [] for c in _ALL_FIRST_COLUMNS} for kind in TRACK_TYPES})
     kaon_chi2: list = field(default_factory=list)
     kaon_states: list = field(default_factory=list)
     explicit_types: bool = False  # chi2 has a track_type column
@@ -736,13 +739,16 @@ class EntryTracks:
             types = np.where(n_scifi > 0, "long", np.where(n_ut > 0, "upstream", "velo")).astype(object)
         first = rows_of(pulls, self.fitter, RESOLUTION_LOCATION)
         kinds = _types_of(first, chi2, types)
-        code = np.full(first.num_rows, TYPE_CODES.index("unknown"), dtype=np.int8)
-        for i, kind in enumerate(TRACK_TYPES):
-            code[kinds == kind] = i
-        for name in _FIRST_COLUMNS:
-            self.first[name].append(column(first, name))
-        self.first["dp_over_p"].append(delta_p_over_p(first, states))
-        self.first["type"].append(code)
+        values = {name: column(first, name) for name in _FIRST_COLUMNS}
+        values["dp_over_p"] = delta_p_over_p(first, states)
+        # without track_type and with no UT/SciFi hit so far every track may turn out to be long
+        # (first_hit): its "velo" rows keep every column until then
+        maybe_long = {"long"} if self.explicit_types or self.spans_detector else {"long", "velo"}
+        for kind in TRACK_TYPES:
+            rows = kinds == kind
+            if rows.any():
+                for name in _ALL_FIRST_COLUMNS if kind in maybe_long else _PULL_COLUMNS:
+                    self.first[kind][name].append(values[name][rows])
 
     def _add_kaons(self, chi2_ok: pa.Table, states: pa.Table, kaon_particles: np.ndarray) -> None:
         """The ok tracks matched to kaons (all the mass needs of chi2: the best track of each
@@ -755,18 +761,23 @@ class EntryTracks:
         self.kaon_states.append(beamline.filter(pa.array(lookup_sorted(wanted, _track_key(beamline))[1]))
                                 .select(list(_KAON_STATE_COLUMNS)))
 
-    def first_hit(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The first-hit pull rows: columns (p_true, res_*, pull_*, dp_over_p) and track types.
-        Consumes the parts (one column's parts and its concatenation in memory at a time)."""
-        cols = {}
-        for name in list(self.first):
-            parts = self.first.pop(name)
-            cols[name] = np.concatenate(parts) if parts else np.zeros(0)
-            del parts
-        types = np.asarray(TYPE_CODES, dtype=object)[cols.pop("type").astype(np.int64)]
+    def first_hit(self) -> dict[str, dict[str, np.ndarray]]:
+        """The first-hit pull rows per track type, in the run's row order: for ``long`` the
+        columns p_true, res_*, pull_*, dp_over_p; for ``upstream`` and ``velo`` the pull_*
+        columns. Consumes the parts (one column's parts and its concatenation in memory at a time)."""
+        first, self.first = self.first, {}
         if not self.explicit_types and not self.spans_detector:  # e.g. the telescope: every track is long
-            types[types != "unknown"] = "long"
-        return cols, types
+            first["long"] = first.pop("velo")  # (no "long" or "upstream" row without UT/SciFi hits)
+            first["velo"] = {}
+        by_type = {}
+        for kind in TRACK_TYPES:
+            wanted = _ALL_FIRST_COLUMNS if kind == "long" else _PULL_COLUMNS
+            by_type[kind] = {}
+            for name in wanted:
+                parts = first[kind].pop(name, [])
+                by_type[kind][name] = np.concatenate(parts) if parts else np.zeros(0)
+                del parts
+        return by_type
 
     def ok_tracks(self) -> tuple[np.ndarray, np.ndarray]:
         """χ²/ndf and is_ghost of the ok tracks (consumes the parts)."""
@@ -822,14 +833,14 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         resolution = _section(False, note, location=RESOLUTION_LOCATION)
         pulls = _section(False, note, location=PULL_LOCATION)
     else:
-        first_all, first_types = tracks_of.first_hit()
-        long = first_types == "long"
-        arrays.p_true = first_all["p_true"][long]
-        arrays.residuals = {"dp_over_p": first_all["dp_over_p"][long]}
+        first = tracks_of.first_hit()
+        long = first["long"]
+        arrays.p_true = long["p_true"]
+        arrays.residuals = {"dp_over_p": long["dp_over_p"]}
         for var in ("x", "y", "tx", "ty"):
-            arrays.residuals[var] = first_all[f"res_{var}"][long]
-        arrays.pulls = {par: first_all[f"pull_{par}"][long] for par in PULL_PARAMETERS}
-        empty = not long.any()
+            arrays.residuals[var] = long[f"res_{var}"]
+        arrays.pulls = {par: long[f"pull_{par}"] for par in PULL_PARAMETERS}
+        empty = arrays.p_true.size == 0
         note = "no matched long track with a fitted first-hit state" if empty else None
         resolution = _section(
             not empty, note, location=RESOLUTION_LOCATION, track_type="long", p_edges_mev=P_EDGES_MEV.tolist(),
@@ -839,14 +850,14 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         )
         by_type = {}
         for kind in TRACK_TYPES:
-            rows = first_types == kind
-            if rows.any():
-                by_type[kind] = {"n_tracks": int(rows.sum()),
-                                 **{par: pull_summary(first_all[f"pull_{par}"][rows]) for par in PULL_PARAMETERS}}
+            n_tracks = first[kind]["pull_x"].size
+            if n_tracks:
+                by_type[kind] = {"n_tracks": int(n_tracks),
+                                 **{par: pull_summary(first[kind][f"pull_{par}"]) for par in PULL_PARAMETERS}}
         pulls = _section(not empty, note, location=PULL_LOCATION, track_type="long",
                          parameters={par: pull_summary(arrays.pulls[par]) for par in PULL_PARAMETERS},
                          by_type=by_type)
-        del first_all, first_types
+        del first, long
 
     # χ²/ndf (Fig. 3)
     chi2_section = chi2_summary(chi2_ndf, ghost_ok, run.has_mc)
