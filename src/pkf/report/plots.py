@@ -362,7 +362,7 @@ def _plot_chi2_types(data: ReportData, out: Path) -> list[Plot]:
         return []
     colors = _colors(names)
     fig, axes = plt.subplots(len(names) + 1, len(kinds), figsize=(11 * len(kinds), 8 * (len(names) + 1)),
-                             squeeze=False)
+                             squeeze=False, gridspec_kw={"hspace": 0.35})
     for row, name in enumerate(names):
         by_type = data.arrays[name].chi2_ndf_by_type
         has_mc = data.summary["entries"][name]["chi2"]["has_mc"]
@@ -455,7 +455,7 @@ def _plot_efficiency_types(data: ReportData, out: Path) -> list[Plot]:
     if not names or len(kinds) < 2:  # long only: efficiency.png shows it
         return []
     colors = _colors(data.entry_order)
-    fig, axes = plt.subplots(len(kinds), 2, figsize=(24, 9 * len(kinds)), squeeze=False)
+    fig, axes = plt.subplots(len(kinds), 2, figsize=(24, 9 * len(kinds)), squeeze=False, gridspec_kw={"hspace": 0.3})
     for row, kind in enumerate(kinds):
         for ax, key, edges, label in ((axes[row, 0], "vs_p", P_EDGES_MEV / 1000.0, r"$p$ [GeV]"),
                                       (axes[row, 1], "vs_eta", ETA_EDGES, r"$\eta$")):
