@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 from io_helpers import LAYER_KIND, LAYER_Z, make_tables, raises_input_error, replace_column, write_dataset
@@ -177,11 +178,32 @@ def test_nan_truth_on_noise_rows_is_read_as_null(dataset_dir, tables):
     assert open_dataset(dataset_dir).mc_hits.equals(mc)
 
 
+@pytest.mark.parametrize("column", ["x", "y", "z"])
+def test_nan_or_null_position_on_noise_rows_is_accepted(dataset_dir, tables, column):
+    """Issue 16: a noise hit has no true position either; NaN there is read as null."""
+    mc = tables["mc_hits"]
+    pid = mc.column("particle_id").to_numpy()
+    noise = np.flatnonzero(pid == 0)
+    assert noise.size and (pid != 0).any()
+    for missing, null_count in ((np.nan, 0), (None, noise.size)):
+        values = mc.column(column).to_pylist()
+        for row in noise:
+            values[row] = missing
+        written = replace_column(mc, column, values, pa.float64())
+        assert written.column(column).null_count == null_count
+        pq.write_table(written, dataset_dir / "mc_hits.parquet")
+        read = open_dataset(dataset_dir).mc_hits
+        assert read.column(column).null_count == noise.size  # NaN and null both read as null
+        assert read.column(column).drop_null().equals(mc.column(column).filter(pc.not_equal(mc.column("particle_id"), 0)))
+        assert read.drop_columns([column]).equals(mc.drop_columns([column]))
+
+
+@pytest.mark.parametrize("column", ["ty", "x", "y", "z"])
 @pytest.mark.parametrize("value, problem", [(None, "is null on a particle's hit (particle_id=1)"),
                                             (float("nan"), "is NaN")])
-def test_missing_truth_on_a_particle_row_is_bad(dataset_dir, tables, value, problem):
-    pq.write_table(_mc_with(tables, "ty", 1, value), dataset_dir / "mc_hits.parquet")
-    raises_input_error(lambda: open_dataset(dataset_dir), "mc_hits.parquet", "column 'ty': row 1 (", problem)
+def test_missing_truth_on_a_particle_row_is_bad(dataset_dir, tables, column, value, problem):
+    pq.write_table(_mc_with(tables, column, 1, value), dataset_dir / "mc_hits.parquet")
+    raises_input_error(lambda: open_dataset(dataset_dir), "mc_hits.parquet", f"column '{column}': row 1 (", problem)
 
 
 def test_wrong_dtype(tmp_path, tables):

@@ -21,11 +21,13 @@ def write_synthetic_run(
     has_mc: bool = True,
     dataset: str | None = None,
     seed: int = 1,
+    track_types: tuple[str, ...] = ("long",),
 ) -> dict:
     """A run directory (DESIGN §6) with one event per 100 tracks.
 
     Real tracks have χ²/ndf ~ χ²(20)/20, ghosts ~ 3 × that; pulls are N(0, 1) with
-    residuals scaled by p-dependent resolutions. Returns the arrays used, per fitter.
+    residuals scaled by p-dependent resolutions; track i has type track_types[i % len]. Returns
+    the arrays used, per fitter.
     """
     rng = np.random.default_rng(seed)
     path.mkdir(parents=True)
@@ -34,14 +36,17 @@ def write_synthetic_run(
     ghost = rng.random(n_tracks) < ghost_fraction if has_mc else np.ones(n_tracks, dtype=bool)
     mc = np.where(ghost, -1, track + 1) if has_mc else np.full(n_tracks, -1)
     chi2_parts, state_parts, pull_parts, truth = [], [], [], {}
+    types = np.asarray(track_types, dtype=object)[np.arange(n_tracks) % len(track_types)]
+    n_ut = np.where(types == "velo", 0, 3)
+    n_scifi = np.where(types == "long", 12, 0)
     for k, fitter in enumerate(fitters):
         chi2_ndf = rng.chisquare(20, n_tracks) / 20 * np.where(ghost, 3.0, 1.0)
         status = np.where(rng.random(n_tracks) < 0.01, "too few hits", "ok")
         ok = status == "ok"
         chi2_ndf = np.where(ok, chi2_ndf, np.nan)
         chi2_parts.append(table_from_columns(CHI2, {
-            "event_id": event, "track_id": track, "fitter": fitter, "track_type": "long", "n_velo": 5,
-            "n_ut": 3, "n_scifi": 12,
+            "event_id": event, "track_id": track, "fitter": fitter, "track_type": types, "n_velo": 5,
+            "n_ut": n_ut, "n_scifi": n_scifi,
             "n_outliers": 0, "chi2": chi2_ndf * 20, "ndf": 20, "chi2_ndf": chi2_ndf, "status": status,
             "mc_particle_id": mc, "match_fraction": np.where(ghost, 0.5, 1.0), "is_ghost": ghost}))
         p_true = np.exp(rng.uniform(np.log(1500.0), np.log(120000.0), n_tracks))
@@ -69,7 +74,7 @@ def write_synthetic_run(
                     cols[f"pull_{name}"] = pull
                     cols[f"res_{name}"] = pull * 0.01 * (1 + 10000.0 / p_true[sel])
                 pull_parts.append(table_from_columns(PULLS, cols))
-        truth[fitter] = {"chi2_ndf": chi2_ndf, "ghost": ghost, "ok": ok}
+        truth[fitter] = {"chi2_ndf": chi2_ndf, "ghost": ghost, "ok": ok, "type": types}
 
     def _write(parts, name, schema):
         table = pa.concat_tables(parts).sort_by([(c, "ascending") for c in

@@ -107,6 +107,9 @@ def test_a_run_written_before_the_track_type_column_is_still_reported(run_copy, 
 
     import pyarrow.parquet as pq
 
+    with_types = tmp_path / "with-types"
+    assert main(["report", str(run_copy), "--out", str(with_types)]) == 0
+    typed = json.loads((with_types / "summary.json").read_text())["entries"]["run/parametrized"]
     info = json.loads((run_copy / "run.json").read_text())
     for partition in info["partitions"]:
         entry = partition["files"]["chi2"]
@@ -119,3 +122,8 @@ def test_a_run_written_before_the_track_type_column_is_still_reported(run_copy, 
     assert main(["report", str(run_copy), "--out", str(out)]) == 0
     entry = json.loads((out / "summary.json").read_text())["entries"]["run/parametrized"]
     assert entry["resolution"]["available"] and entry["tracks"]["matched"] > 0
+    # the telescope: every track spans the detector, with or without the column (issue 17.2 by type)
+    assert list(typed["chi2"]["by_type"]) == ["long"]
+    assert entry["chi2"]["by_type"] == typed["chi2"]["by_type"]
+    assert entry["efficiency"]["by_type"] == typed["efficiency"]["by_type"]
+    assert entry["efficiency"]["by_type"]["long"]["found"] == entry["efficiency"]["found"] > 0

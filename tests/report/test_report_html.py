@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 
+from matplotlib.image import imread
 import pytest
 from report_helpers import SECTION_IDS, entry, image_sources
 
@@ -81,6 +82,16 @@ def _render(chromium: str, page, profile) -> str:
     return result.stdout
 
 
+def _screenshot(chromium: str, page, out, profile, width: int = 1600, height: int = 12000) -> None:
+    """A PNG screenshot of `page` (the top `height` pixels) by headless Chromium."""
+    cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+           "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-extensions",
+           "--hide-scrollbars", f"--user-data-dir={profile}", "--virtual-time-budget=5000",
+           f"--window-size={width},{height}", f"--screenshot={out}", page.as_uri()]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    assert result.returncode == 0 and out.is_file(), result.stderr[-2000:]
+
+
 def _image_widths(dom: str) -> list[int]:
     widths = []
     for tag in re.findall(r"<img\b[^>]*>", dom):
@@ -106,6 +117,21 @@ def test_report_renders_in_headless_chromium(bs_report, tmp_path):
     assert len(widths) == n_images and all(w > 0 for w in widths), widths
     for section in SECTION_IDS:
         assert re.search(rf'<section id="{section}"', dom), section
+
+    # the per-track-type figures (issue 17.2) are on the page and load
+    sources = image_sources(text)
+    for figure in ("chi2_types.png", "efficiency_types.png"):
+        assert figure in sources
+        assert widths[sources.index(figure)] > 0, figure
+
+    # a screenshot of the whole page: every figure is painted (not a blank page)
+    shot = tmp_path / "page.png"
+    _screenshot(chromium, site / "index.html", shot, tmp_path / "profile")
+    pixels = imread(shot)
+    assert pixels.shape[0] >= 4000, pixels.shape  # the page is tall: figures one under another
+    painted = (pixels[..., :3] < 0.9).any(axis=2)  # not white
+    rows = painted.any(axis=1)
+    assert rows.mean() > 0.3, rows.mean()
 
     # the probe does see a broken image: remove one PNG and render again
     (site / "mass.png").unlink()

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import trapezoid
 
+from pkf.physics.constants import MASS_PHI
 from pkf.report.massfit import BS_MASS, KAON_MASS, fit_mass_peak, four_momenta, invariant_mass
 
 WINDOW = (BS_MASS - 250.0, BS_MASS + 250.0)
@@ -59,7 +60,7 @@ def test_invariant_mass_of_kaons():
     mom = four_momenta([1 / 5000.0, -1 / 5000.0], [0.1, 0.1], [-0.05, -0.05])
     assert invariant_mass(mom[None, :, :])[0] == pytest.approx(2 * KAON_MASS, rel=1e-9)
     # a φ at rest decaying to K⁺K⁻ back to back, then boosted along z: mass is invariant
-    m_phi = 1019.461
+    m_phi = MASS_PHI
     p_star = np.sqrt((m_phi / 2) ** 2 - KAON_MASS**2)
     theta = 0.7
     k1 = np.array([m_phi / 2, p_star * np.sin(theta), 0.0, p_star * np.cos(theta)])

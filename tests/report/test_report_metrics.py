@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 import pytest
 from report_helpers import entry, read_summary, write_synthetic_run
 
+from pkf.geometry.detector import load_geometry
 from pkf.io.reader import read_table
 from pkf.io.schemas import PULLS, STATES
 from pkf.cli import main
 from pkf.pipeline.report import run_report
 from pkf.params.gauss import gaussian_core
+from pkf.physics.constants import MASS_BS
 from pkf.report.metrics import CHI2_NDF_CUTS, P_EDGES_MEV
 
 
@@ -124,6 +129,46 @@ def test_efficiency_and_rates_match_run_json(bs_run, bs_report):
     assert sum(eff["vs_eta"]["reconstructible"]) > 0.5 * eff["reconstructible"]
 
 
+def _reconstructible_by_hits(dataset) -> dict[str, set]:
+    """Particle keys (event, particle) with ≥ 3 VELO hits, and with ≥ 3 VELO and ≥ 3 UT hits,
+    counted from the dataset's files with plain pyarrow."""
+    hits = pq.read_table(dataset / "hits.parquet", columns=["event_id", "hit_id", "layer"])
+    mc = pq.read_table(dataset / "mc_hits.parquet", columns=["event_id", "hit_id", "particle_id"])
+    joined = hits.join(mc, ["event_id", "hit_id"]).filter(pc.greater(pc.field("particle_id"), 0))
+    sub = np.asarray(load_geometry("lhcb-like").layer_subdetector)[joined.column("layer").to_numpy()]
+    counts: dict[tuple[int, int], list[int]] = {}
+    for ev, pid, s in zip(joined.column("event_id").to_pylist(), joined.column("particle_id").to_pylist(), sub):
+        counts.setdefault((ev, pid), [0, 0, 0])[int(s)] += 1
+    return {"velo": {k for k, c in counts.items() if c[0] >= 3},
+            "upstream": {k for k, c in counts.items() if c[0] >= 3 and c[1] >= 3}}
+
+
+def test_efficiency_per_track_type(bs_run, bs_report):
+    """Issue 17.2: efficiency per track type; upstream and VELO counted from the dataset here."""
+    _, summary = bs_report
+    eff = entry(summary, "reference")["efficiency"]
+    by_type = eff["by_type"]
+    assert set(by_type) == {"long", "upstream", "velo"}
+    assert by_type["long"]["reconstructible"] == eff["reconstructible"]
+    assert by_type["long"]["found"] <= eff["found"]  # long tracks only
+    chi2 = pa.concat_tables(pq.read_table(f) for f in sorted((bs_run / "chi2").glob("*.parquet")))
+    chi2 = chi2.filter(pc.and_(pc.equal(chi2.column("status"), "ok"), pc.greater(chi2.column("mc_particle_id"), 0)))
+    found_by = {}
+    for ev, pid, kind in zip(chi2.column("event_id").to_pylist(), chi2.column("mc_particle_id").to_pylist(),
+                             chi2.column("track_type").to_pylist()):
+        found_by.setdefault(kind, set()).add((ev, pid))
+    dataset = Path(summary["runs"][0]["dataset"])
+    reconstructible = _reconstructible_by_hits(dataset)
+    expected_found = {"velo": found_by.get("long", set()) | found_by.get("upstream", set()) | found_by.get("velo", set()),
+                      "upstream": found_by.get("long", set()) | found_by.get("upstream", set())}
+    for kind in ("velo", "upstream"):
+        assert by_type[kind]["reconstructible"] == len(reconstructible[kind]) > 0, kind
+        assert by_type[kind]["found"] == len(reconstructible[kind] & expected_found[kind]), kind
+        assert sum(by_type[kind]["vs_p"]["found"]) <= by_type[kind]["found"]
+        assert by_type[kind]["efficiency"] == pytest.approx(by_type[kind]["found"] / by_type[kind]["reconstructible"])
+    assert by_type["velo"]["reconstructible"] >= by_type["long"]["reconstructible"]
+
+
 def test_bs_mass_from_all_kaons(bs_report):
     """The peak is built from all kaon tracks (issue 17): it holds the truth-matched decays that
     pass the selection, plus combinations; the fit finds the B_s mass."""
@@ -136,7 +181,7 @@ def test_bs_mass_from_all_kaons(bs_report):
     assert mass["n_candidates"] >= mass["n_signal_candidates"]
     fit = mass["fit"]
     assert fit["status"] == "ok", mass
-    assert abs(fit["mean"] - 5366.92) < 5 * fit["mean_error"] + 2.0
+    assert abs(fit["mean"] - MASS_BS) < 5 * fit["mean_error"] + 2.0
     assert 2.0 < fit["sigma"] < 60.0
 
 
@@ -172,6 +217,40 @@ def test_chi2_scan_with_ghosts(tmp_path):
     # one run, both fitters: the speed-up follows the §12 protocol
     timing = entry(summary, "parametrized")["timing"]
     assert timing["same_run_as_reference"] is True and timing["speed_up_vs_reference"] == pytest.approx(2.0)
+
+
+def test_chi2_per_track_type(tmp_path):
+    """Issue 17.2: χ²/ndf real vs ghost and the efficiency–rejection scan per track type, in
+    summary.json (chi2.by_type) and in a figure of its own (chi2_types.png)."""
+    run = tmp_path / "run"
+    truth = write_synthetic_run(run, fitters=("parametrized", "reference"), n_tracks=1500, ghost_fraction=0.3,
+                                track_types=("long", "upstream", "long", "velo"))
+    report = tmp_path / "report"
+    summary = run_report([run], report)
+    for fitter, t in truth.items():
+        chi2 = entry(summary, fitter)["chi2"]
+        assert set(chi2["by_type"]) == {"long", "upstream", "velo"}
+        for kind, section in chi2["by_type"].items():
+            of_type = t["ok"] & (t["type"] == kind)
+            real = t["chi2_ndf"][of_type & ~t["ghost"]]
+            ghost = t["chi2_ndf"][of_type & t["ghost"]]
+            assert section["real"]["n"] == real.size and section["ghost"]["n"] == ghost.size
+            assert section["real"]["median"] == pytest.approx(np.median(real))
+            for c, eff, rej in zip(section["cut_scan"]["cuts"], section["cut_scan"]["real_efficiency"],
+                                   section["cut_scan"]["ghost_rejection"]):
+                assert eff == pytest.approx(np.mean(real < c))
+                assert rej == pytest.approx(np.mean(ghost >= c))
+        # the types add up to the whole
+        assert sum(s["real"]["n"] for s in chi2["by_type"].values()) == chi2["real"]["n"]
+    assert (report / "chi2_types.png").is_file()
+    assert "chi2_types.png" in (report / "index.html").read_text(encoding="utf-8")
+
+
+def test_one_track_type_needs_no_figure_of_its_own(tmp_path):
+    write_synthetic_run(tmp_path / "run")
+    summary = run_report([tmp_path / "run"], tmp_path / "report")
+    assert list(entry(summary, "parametrized")["chi2"]["by_type"]) == ["long"]
+    assert not (tmp_path / "report" / "chi2_types.png").exists()
 
 
 def test_run_without_mc(tmp_path):

@@ -11,7 +11,7 @@ from pkf.simulation.generators import (
     generate_gun,
     generate_minbias,
 )
-from pkf.physics.constants import MASS_BS, MASS_PHI
+from pkf.physics.constants import CTAU_BS, MASS_BS, MASS_PHI
 
 
 def _invariant_mass(ev, rows):
@@ -38,7 +38,7 @@ def test_bs_flight_distance_follows_ctau():
         flight = np.array([ev["vx"][1], ev["vy"][1], ev["vz"][1]])
         p = np.array([ev["px"][0], ev["py"][0], ev["pz"][0]])
         proper.append(np.linalg.norm(flight) * MASS_BS / np.linalg.norm(p))
-    assert np.mean(proper) == pytest.approx(0.455, rel=0.05)
+    assert np.mean(proper) == pytest.approx(CTAU_BS, rel=0.05)
 
 
 def test_bs_event_parents_point_into_the_event():

@@ -130,15 +130,17 @@ PARTICLES = _schema(
 #: ``mc_hits``: MC truth per hit. particle_id 0 for noise hits; x, y, z in mm and the
 #: true local state tx, ty, qop (1/MeV) at the layer after material effects; tx, ty,
 #: qop are null for noise hits (a NaN there is read as null) and set on every other row.
+#: x, y, z may be null (or NaN, read as null) on noise rows too: a noise hit has no true
+#: position (pkf's simulation writes the position it drew); a particle's row has them all.
 MC_HITS = _schema(
     "mc_hits",
     [
         _field("event_id", _I64),
         _field("hit_id", _I64),
         _field("particle_id", _I64),
-        _field("x", _F64),
-        _field("y", _F64),
-        _field("z", _F64),
+        _field("x", _F64, nullable=True),
+        _field("y", _F64, nullable=True),
+        _field("z", _F64, nullable=True),
         _field("tx", _F64, nullable=True),
         _field("ty", _F64, nullable=True),
         _field("qop", _F64, nullable=True),
@@ -323,7 +325,7 @@ TABLE_SPECS: dict[str, TableSpec] = {
         null_together=(("tx", "ty", "qop"),),
         # a particle's hit has a finite momentum: p_true = 1/|qop| in the pulls
         nonzero_vectors=((("qop",), "the true q/p of a particle's hit; p = 1/|qop|"),),
-        noise_truth=(("tx", "ty", "qop"), "particle_id"),
+        noise_truth=(("x", "y", "z", "tx", "ty", "qop"), "particle_id"),
     ),
     "chi2": TableSpec("chi2", CHI2, unique_key=("event_id", "track_id", "fitter")),
     "candidates": TableSpec("candidates", CANDIDATES, unique_key=("event_id", "track_id", "hit_id")),

@@ -7,6 +7,7 @@ normal density renormalised to that window, and repeat three times.
 
 from __future__ import annotations
 
+import gc
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +16,12 @@ from iminuit.cost import UnbinnedNLL
 from scipy.special import ndtr
 
 _LOG_SQRT_2PI = 0.5 * float(np.log(2.0 * np.pi))
+#: Above this many values a fit's garbage is collected at once. iminuit's Minuit sits in a
+#: reference cycle with its views (values, errors, ...) and keeps its cost, which holds a copy
+#: of the fitted values, until a full collection: 3 passes × 8 bytes per value (23 MB for
+#: 10⁶ values) that otherwise pile up over the report's many fits (49 MB of the 90 MB of numpy
+#: memory held after `compute_report` on 800 events of ν = 7.6; measured with tracemalloc).
+COLLECT_ABOVE_VALUES = 100_000
 
 
 @dataclass(frozen=True)
@@ -67,4 +74,8 @@ def gaussian_core(values, window: float = 3.0, passes: int = 3) -> GaussianCore:
         valid = bool(m.valid)
         mean, sigma = float(m.values["mu"]), float(m.values["sig"])
         errors = (float(m.errors["mu"]), float(m.errors["sig"]))
-    return GaussianCore(mean, sigma, errors[0], errors[1], rms, int(sel.size), valid)
+    n = int(sel.size)
+    if x.size > COLLECT_ABOVE_VALUES:
+        del m, sel
+        gc.collect()
+    return GaussianCore(mean, sigma, errors[0], errors[1], rms, n, valid)

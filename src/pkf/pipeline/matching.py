@@ -90,3 +90,16 @@ def velo_reconstructible_particles(geometry, particle_key: np.ndarray, layer: np
     signal = (particle_key > 0) & (geometry.layer_subdetector[layer] == SUBDETECTORS.index("velo"))
     keys, counts = np.unique(particle_key[signal], return_counts=True)
     return keys[counts >= 3]
+
+
+def upstream_reconstructible_particles(geometry, particle_key: np.ndarray, layer: np.ndarray) -> np.ndarray:
+    """Keys of the particles reconstructible as upstream tracks: ≥ 3 VELO hits and ≥ 3 UT hits
+    (docs/physics.md#matching-and-metrics). Empty in a geometry without UT."""
+    from pkf.geometry.detector import SUBDETECTORS
+
+    signal = particle_key > 0
+    keys, inverse = np.unique(particle_key[signal], return_inverse=True)
+    sub = geometry.layer_subdetector[layer[signal]]
+    velo_hits = np.bincount(inverse, weights=sub == SUBDETECTORS.index("velo"), minlength=keys.size)
+    ut_hits = np.bincount(inverse, weights=sub == SUBDETECTORS.index("ut"), minlength=keys.size)
+    return keys[(velo_hits >= 3) & (ut_hits >= 3)]

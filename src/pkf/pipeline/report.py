@@ -16,10 +16,15 @@ from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_di
 from pkf.io.schemas import particle_key
 from pkf.io.reader import Dataset
 from pkf.io.stream import read_rows
+from pkf.physics.constants import PDG_BS, PDG_KAON, PDG_PHI
 from pkf.pipeline.inputs import STATE_NAMES, align_mc
 from pkf.pipeline.plan import plan_dataset
 from pkf.pipeline.progress import progress_bar
-from pkf.pipeline.matching import reconstructible_particles
+from pkf.pipeline.matching import (
+    reconstructible_particles,
+    upstream_reconstructible_particles,
+    velo_reconstructible_particles,
+)
 from pkf.report.html import render_html
 from pkf.report.metrics import DatasetTruth, compute_report, lookup_sorted
 from pkf.report.runs import RunInput, column, load_runs, parse_run_spec
@@ -127,20 +132,30 @@ def load_truth(run: RunInput, progress=None) -> DatasetTruth:
     order = np.argsort(reco, kind="stable")
     quads = np.concatenate([part["quads"] for part in parts])
     quads = quads[np.argsort(quads[:, 0], kind="stable")]  # as one dict over all kaons in key order
+    by_type = {}
+    for kind in ("upstream", "velo"):  # long: reco_key, reco_p, reco_eta
+        keys = np.concatenate([part[kind][0] for part in parts])
+        k_order = np.argsort(keys, kind="stable")
+        by_type[kind] = tuple(np.concatenate([part[kind][i] for part in parts])[k_order] for i in range(3))
     return DatasetTruth("ok", plan.n_events, reco[order], np.concatenate([part["p"] for part in parts])[order],
                         np.concatenate([part["eta"] for part in parts])[order], quads,
-                        sum(part["n_bs"] for part in parts), np.sort(np.concatenate([part["kaons"] for part in parts])))
+                        sum(part["n_bs"] for part in parts), np.sort(np.concatenate([part["kaons"] for part in parts])),
+                        by_type)
 
 
 def _truth_of_part(geometry, dataset: Dataset) -> dict:
     """What :func:`load_truth` keeps of some whole events: the reconstructible particles' keys
-    (sorted), true p [MeV] and η; the kaon keys of each B_s decay (rows of four, sorted); the
-    number of B_s; the keys of every kaon."""
+    (sorted), true p [MeV] and η (long; and (keys, p, η) of the upstream and VELO reconstructible
+    ones); the kaon keys of each B_s decay (rows of four, sorted); the number of B_s; the keys
+    of every kaon."""
     hits = dataset.hits
     event_id = column(hits, "event_id", np.int64)
     particle, _ = align_mc(dataset, event_id)
     key = particle_key(event_id, particle)
-    reco = np.sort(reconstructible_particles(geometry, key, column(hits, "layer", np.int64)))
+    layer = column(hits, "layer", np.int64)
+    reco = np.sort(reconstructible_particles(geometry, key, layer))
+    reco_of = {"upstream": np.sort(upstream_reconstructible_particles(geometry, key, layer)),
+               "velo": np.sort(velo_reconstructible_particles(geometry, key, layer))}
 
     parts = dataset.particles
     p_event = column(parts, "event_id", np.int64)
@@ -154,6 +169,10 @@ def _truth_of_part(geometry, dataset: Dataset) -> dict:
     p = np.sqrt(pt**2 + pz**2)
     with np.errstate(divide="ignore", invalid="ignore"):
         eta = -np.log(np.tan(0.5 * np.arctan2(pt, pz)))
+    by_type = {}
+    for kind, keys in reco_of.items():
+        kpos, _ = lookup_sorted(p_key_sorted, keys)
+        by_type[kind] = (keys, p[kpos], eta[kpos])
 
     # B_s → φφ, φ → K⁺K⁻: group signal kaons by their grand-parent
     pdg = column(parts, "pdg", np.int64)[order]
@@ -166,14 +185,14 @@ def _truth_of_part(geometry, dataset: Dataset) -> dict:
     grand_key = np.where(pfound, particle_key(ev_sorted, parent[ppos]), 0)
     gpos, gfound = lookup_sorted(p_key_sorted, grand_key)
     grand_pdg = np.where(pfound & gfound, pdg[gpos], 0)
-    is_kaon = signal & (np.abs(pdg) == 321) & (parent_pdg == 333) & (np.abs(grand_pdg) == 531)
-    bs = signal & (np.abs(pdg) == 531)
+    is_kaon = signal & (np.abs(pdg) == PDG_KAON) & (parent_pdg == PDG_PHI) & (np.abs(grand_pdg) == PDG_BS)
+    bs = signal & (np.abs(pdg) == PDG_BS)
     kaons_of = {}
     for k_key, g_key in zip(p_key_sorted[is_kaon], grand_key[is_kaon]):
         kaons_of.setdefault(int(g_key), []).append(int(k_key))
     quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
     return {"reco": reco, "p": p[pos], "eta": eta[pos], "quads": np.array(quads, dtype=np.int64).reshape(-1, 4),
-            "n_bs": int(bs.sum()), "kaons": p_key_sorted[np.abs(pdg) == 321]}
+            "n_bs": int(bs.sum()), "kaons": p_key_sorted[np.abs(pdg) == PDG_KAON], **by_type}
 
 
 def load_truths(runs: list[RunInput], progress=None) -> list[DatasetTruth | None]:

@@ -24,6 +24,7 @@ from pkf.io.reader import extra_columns_warning
 from pkf.io.atomic import check_output_apart
 from pkf.io.schemas import particle_key
 from pkf.params.parameter_set import ParameterSet, slot_structure
+from pkf.physics.constants import PDG_PION
 from pkf.params.transport import STEP_UT_TO_SCIFI
 from pkf.params.tuning import build_pairs, short_steps, step_groups, tune_slots
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
@@ -35,7 +36,6 @@ UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
 #: spacing in y/z, across which the field (and its 100 mm map) varies fastest: the table's
 #: error at 3–5 GeV drops from 86 to 53 µm RMS (measured at the first SciFi layer).
 UT_TO_SCIFI_GRID = (50, 100)
-PDG_PION = 211
 
 
 def ut_to_scifi_table(geometry: Geometry, field_map, progress: bool | None = False) -> UTSciFiTable | None:

@@ -90,7 +90,8 @@ Top level:
     ``ghost``, ``all`` = {``n``, ``mean``, ``median``, ``q90``, ``q99``} (``real`` and
     ``ghost`` null without MC, ``ghost`` null without ghosts), ``cut_scan`` =
     {``cuts``, ``real_efficiency``, ``ghost_rejection`` (null without ghosts); without
-    MC instead ``all_efficiency`` (fraction of all tracks kept)}.
+    MC instead ``all_efficiency`` (fraction of all tracks kept)}; ``by_type``: per track
+    type present (``long``, ``upstream``, ``velo``) the same keys for that type's tracks.
   - ``mass``: ``available``, ``note``, ``location``, ``n_signal_decays`` (B_s in the
     dataset), ``n_long_decays`` (those whose four kaons are long reconstructible),
     ``n_truth_matched`` (long decays with all four kaons fitted), ``n_candidates`` (all-kaon
@@ -107,7 +108,9 @@ Top level:
   - ``efficiency``: ``available``, ``note``, ``reconstructible``, ``found``,
     ``efficiency``, ``ghost_rate``, ``clone_rate`` (among this fitter's ok tracks),
     ``p_edges_mev``, ``vs_p`` and ``eta_edges``, ``vs_eta`` = {``reconstructible``,
-    ``found``, ``efficiency``, ``error_low``, ``error_high``} lists per bin.
+    ``found``, ``efficiency``, ``error_low``, ``error_high``} lists per bin; ``by_type``:
+    per track type (:data:`EFFICIENCY_TYPES`) ``reconstructible_as``, ``found_by``,
+    ``reconstructible``, ``found``, ``efficiency``, ``vs_p``, ``vs_eta``.
   - ``timing``: ``available``, ``note``, ``wall_s``, ``cpu_s``, ``tracks``,
     ``tracks_per_s``, ``ns_per_node``, ``speed_up_vs_reference``,
     ``ns_per_node_ratio`` (reference ns/node ÷ this fitter's), ``same_run_as_reference``.
@@ -188,6 +191,8 @@ class FitterArrays:
     chi2_ndf_real: np.ndarray = field(default_factory=lambda: np.zeros(0))
     chi2_ndf_ghost: np.ndarray = field(default_factory=lambda: np.zeros(0))
     chi2_ndf_all: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: per track type present: (real, ghost) χ²/ndf of the ok tracks (without MC: (all, empty))
+    chi2_ndf_by_type: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     masses: np.ndarray = field(default_factory=lambda: np.zeros(0))  # all-kaon B_s candidates (Fig. 4)
     signal_masses: np.ndarray = field(default_factory=lambda: np.zeros(0))  # truth-matched decays
     mass_decays: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # decay index per signal mass
@@ -476,6 +481,9 @@ class DatasetTruth:
     kaon_keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))  # per B_s decay
     n_bs: int = 0
     kaon_particles: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted, |pdg| = 321
+    #: "upstream", "velo" → (sorted keys, p [MeV], η) of the particles reconstructible as that type
+    #: (long: reco_key, reco_p, reco_eta)
+    by_type: dict = field(default_factory=dict)
 
 
 def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
@@ -494,6 +502,7 @@ def _efficiency_section(truth: DatasetTruth, tracks_of: EntryTracks, has_mc: boo
     found = np.isin(truth.reco_key, _found(tracks_of.found_ok))
     ghost_rate, clone_rate = _rates_of_counts(tracks_of.rates_ok)
     n = int(truth.reco_key.size)
+    by_type = _efficiency_by_type(truth, tracks_of)
     return _section(
         True,
         None if n else "no reconstructible particle in the dataset",
@@ -506,7 +515,42 @@ def _efficiency_section(truth: DatasetTruth, tracks_of: EntryTracks, has_mc: boo
         vs_p=efficiency_in_bins(truth.reco_p, found, P_EDGES_MEV),
         eta_edges=ETA_EDGES.tolist(),
         vs_eta=efficiency_in_bins(truth.reco_eta, found, ETA_EDGES),
+        by_type=by_type,
     )
+
+
+#: Per track type: the particles counted (reconstructible as that type, docs/physics.md#matching-and-metrics)
+#: and the ok tracks that find one (a long track also carries the particle's upstream segment).
+EFFICIENCY_TYPES = {
+    "long": ("≥ 3 VELO hits and an x and a stereo hit in every SciFi station", ("long",)),
+    "upstream": ("≥ 3 VELO hits and ≥ 3 UT hits", ("upstream", "long")),
+    "velo": ("≥ 3 VELO hits", TRACK_TYPES),
+}
+
+
+def _efficiency_by_type(truth: DatasetTruth, tracks_of: EntryTracks) -> dict:
+    """Efficiency vs p and η per track type (:data:`EFFICIENCY_TYPES`); a type without
+    reconstructible particles in the dataset is left out."""
+    found_of = tracks_of.found_by_type
+    if tracks_of.every_track_long:  # a run without track_type on a detector without UT and SciFi
+        found_of = {"long": [part for parts in found_of.values() for part in parts], "upstream": [], "velo": []}
+    out = {}
+    for kind, (reconstructible, found_by) in EFFICIENCY_TYPES.items():
+        keys, p, eta = ((truth.reco_key, truth.reco_p, truth.reco_eta) if kind == "long"
+                        else truth.by_type.get(kind, (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))))
+        if keys.size == 0:
+            continue
+        found = np.isin(keys, _found([part for t in found_by for part in found_of[t]]))
+        out[kind] = {
+            "reconstructible_as": reconstructible,
+            "found_by": list(found_by),
+            "reconstructible": int(keys.size),
+            "found": int(found.sum()),
+            "efficiency": _f(found.mean()),
+            "vs_p": efficiency_in_bins(p, found, P_EDGES_MEV),
+            "vs_eta": efficiency_in_bins(eta, found, ETA_EDGES),
+        }
+    return out
 
 
 # ----------------------------------------------------------------------------- B_s mass
@@ -662,10 +706,19 @@ def _timing_section(run: RunInput, name: str) -> dict:
 # ----------------------------------------------------------------------------- main entry
 
 
-TYPE_CODES = (*TRACK_TYPES, "unknown")
-_FIRST_COLUMNS = ("p_true", *(f"res_{v}" for v in ("x", "y", "tx", "ty")), *(f"pull_{p}" for p in PULL_PARAMETERS))
+_PULL_COLUMNS = tuple(f"pull_{p}" for p in PULL_PARAMETERS)
+_FIRST_COLUMNS = ("p_true", *(f"res_{v}" for v in ("x", "y", "tx", "ty")), *_PULL_COLUMNS)
+_ALL_FIRST_COLUMNS = (*_FIRST_COLUMNS, "dp_over_p")
 _KAON_CHI2_COLUMNS = ("event_id", "track_id", "mc_particle_id", "match_fraction", "is_ghost")
 _KAON_STATE_COLUMNS = ("event_id", "track_id", "qop", "tx", "ty", "z")
+
+
+def _type_codes(types: np.ndarray) -> np.ndarray:
+    """Index into TRACK_TYPES of each track type name (int8)."""
+    codes = np.zeros(types.size, dtype=np.int8)
+    for i, kind in enumerate(TRACK_TYPES[1:], start=1):
+        codes[types == kind] = i
+    return codes
 
 
 def _rate_counts(chi2: pa.Table) -> np.ndarray:
@@ -699,11 +752,15 @@ class EntryTracks:
     total: int = 0
     chi2_ndf: list = field(default_factory=list)  # ok tracks
     ghost: list = field(default_factory=list)  # ok tracks
+    chi2_type: list = field(default_factory=list)  # ok tracks: index into TRACK_TYPES (int8)
     found_ok: list = field(default_factory=list)  # particle keys matched by an ok track
     found_any: list = field(default_factory=list)  # particle keys matched by any track
+    found_by_type: dict = field(default_factory=lambda: {kind: [] for kind in TRACK_TYPES})  # ok tracks
     rates_ok: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
     rates_any: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
-    first: dict = field(default_factory=lambda: {c: [] for c in (*_FIRST_COLUMNS, "dp_over_p", "type")})
+    # first-hit pull rows per track type: every column for long tracks (resolution and pulls),
+    # the pulls alone for the other types (their pull summaries); "unknown" rows are not kept
+    first: dict = field(default_factory=lambda: {kind: {c: [] for c in _ALL_FIRST_COLUMNS} for kind in TRACK_TYPES})
     kaon_chi2: list = field(default_factory=list)
     kaon_states: list = field(default_factory=list)
     explicit_types: bool = False  # chi2 has a track_type column
@@ -713,36 +770,54 @@ class EntryTracks:
             kaon_particles: np.ndarray | None) -> None:
         """Add one part's rows of this fitter (``kaon_particles``: sorted particle keys of the
         dataset's kaons when the mass is made, else None)."""
-        chi2_ok = chi2.filter(pc.equal(chi2.column("status"), "ok"))
+        ok = pc.equal(chi2.column("status"), "ok")
+        chi2_ok = chi2.filter(ok)
+        types = self._part_types(chi2)
         self.total += chi2.num_rows
         self.chi2_ndf.append(column(chi2_ok, "chi2_ndf"))
         self.ghost.append(column(chi2_ok, "is_ghost", bool))
+        ok_types = types[ok.to_numpy(zero_copy_only=False)]
+        self.chi2_type.append(_type_codes(ok_types))
+        for kind in TRACK_TYPES:
+            self.found_by_type[kind].append(_found_particles(chi2_ok.filter(pa.array(ok_types == kind)), ok_only=False))
         self.found_ok.append(_found_particles(chi2_ok, ok_only=True))
         self.found_any.append(_found_particles(chi2, ok_only=False))
         self.rates_ok += _rate_counts(chi2_ok)
         self.rates_any += _rate_counts(chi2)
         if pulls is not None:
-            self._add_first_hit(chi2, states, pulls)
+            self._add_first_hit(chi2, states, pulls, types)
         if kaon_particles is not None:
             self._add_kaons(chi2_ok, states, kaon_particles)
 
-    def _add_first_hit(self, chi2: pa.Table, states: pa.Table, pulls: pa.Table) -> None:
+    def _part_types(self, chi2: pa.Table) -> np.ndarray:
+        """Track type of each row of one part's chi2 rows: its ``track_type`` column, else from
+        the hit counts (a run without UT and SciFi hits is relabelled ``long`` at the end)."""
         if "track_type" in chi2.column_names:
             self.explicit_types = True
-            types = track_types(chi2)
-        else:
-            n_ut, n_scifi = column(chi2, "n_ut", np.int64), column(chi2, "n_scifi", np.int64)
-            self.spans_detector |= bool(np.any(n_ut > 0) or np.any(n_scifi > 0))
-            types = np.where(n_scifi > 0, "long", np.where(n_ut > 0, "upstream", "velo")).astype(object)
+            return track_types(chi2)
+        n_ut, n_scifi = column(chi2, "n_ut", np.int64), column(chi2, "n_scifi", np.int64)
+        self.spans_detector |= bool(np.any(n_ut > 0) or np.any(n_scifi > 0))
+        return np.where(n_scifi > 0, "long", np.where(n_ut > 0, "upstream", "velo")).astype(object)
+
+    @property
+    def every_track_long(self) -> bool:
+        """No track_type column and no track with UT or SciFi hits (e.g. the telescope): every
+        track spans the whole detector and measures its momentum."""
+        return not self.explicit_types and not self.spans_detector
+
+    def _add_first_hit(self, chi2: pa.Table, states: pa.Table, pulls: pa.Table, types: np.ndarray) -> None:
         first = rows_of(pulls, self.fitter, RESOLUTION_LOCATION)
         kinds = _types_of(first, chi2, types)
-        code = np.full(first.num_rows, TYPE_CODES.index("unknown"), dtype=np.int8)
-        for i, kind in enumerate(TRACK_TYPES):
-            code[kinds == kind] = i
-        for name in _FIRST_COLUMNS:
-            self.first[name].append(column(first, name))
-        self.first["dp_over_p"].append(delta_p_over_p(first, states))
-        self.first["type"].append(code)
+        values = {name: column(first, name) for name in _FIRST_COLUMNS}
+        values["dp_over_p"] = delta_p_over_p(first, states)
+        # without track_type and with no UT/SciFi hit so far every track may turn out to be long
+        # (first_hit): its "velo" rows keep every column until then
+        maybe_long = {"long", "velo"} if self.every_track_long else {"long"}
+        for kind in TRACK_TYPES:
+            rows = kinds == kind
+            if rows.any():
+                for name in _ALL_FIRST_COLUMNS if kind in maybe_long else _PULL_COLUMNS:
+                    self.first[kind][name].append(values[name][rows])
 
     def _add_kaons(self, chi2_ok: pa.Table, states: pa.Table, kaon_particles: np.ndarray) -> None:
         """The ok tracks matched to kaons (all the mass needs of chi2: the best track of each
@@ -755,25 +830,33 @@ class EntryTracks:
         self.kaon_states.append(beamline.filter(pa.array(lookup_sorted(wanted, _track_key(beamline))[1]))
                                 .select(list(_KAON_STATE_COLUMNS)))
 
-    def first_hit(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The first-hit pull rows: columns (p_true, res_*, pull_*, dp_over_p) and track types.
-        Consumes the parts (one column's parts and its concatenation in memory at a time)."""
-        cols = {}
-        for name in list(self.first):
-            parts = self.first.pop(name)
-            cols[name] = np.concatenate(parts) if parts else np.zeros(0)
-            del parts
-        types = np.asarray(TYPE_CODES, dtype=object)[cols.pop("type").astype(np.int64)]
-        if not self.explicit_types and not self.spans_detector:  # e.g. the telescope: every track is long
-            types[types != "unknown"] = "long"
-        return cols, types
+    def first_hit(self) -> dict[str, dict[str, np.ndarray]]:
+        """The first-hit pull rows per track type, in the run's row order: for ``long`` the
+        columns p_true, res_*, pull_*, dp_over_p; for ``upstream`` and ``velo`` the pull_*
+        columns. Consumes the parts (one column's parts and its concatenation in memory at a time)."""
+        first, self.first = self.first, {}
+        if self.every_track_long:  # e.g. the telescope
+            first["long"] = first.pop("velo")  # (no "long" or "upstream" row without UT/SciFi hits)
+            first["velo"] = {}
+        by_type = {}
+        for kind in TRACK_TYPES:
+            wanted = _ALL_FIRST_COLUMNS if kind == "long" else _PULL_COLUMNS
+            by_type[kind] = {}
+            for name in wanted:
+                parts = first[kind].pop(name, [])
+                by_type[kind][name] = np.concatenate(parts) if parts else np.zeros(0)
+                del parts
+        return by_type
 
-    def ok_tracks(self) -> tuple[np.ndarray, np.ndarray]:
-        """χ²/ndf and is_ghost of the ok tracks (consumes the parts)."""
+    def ok_tracks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """χ²/ndf, is_ghost and track type (index into TRACK_TYPES) of the ok tracks (consumes the parts)."""
         chi2_ndf = np.concatenate(self.chi2_ndf) if self.chi2_ndf else np.zeros(0)
         ghost = np.concatenate(self.ghost) if self.ghost else np.zeros(0, dtype=bool)
-        self.chi2_ndf, self.ghost = [], []
-        return chi2_ndf, ghost
+        types = np.concatenate(self.chi2_type) if self.chi2_type else np.zeros(0, dtype=np.int8)
+        if self.every_track_long:
+            types[:] = TRACK_TYPES.index("long")
+        self.chi2_ndf, self.ghost, self.chi2_type = [], [], []
+        return chi2_ndf, ghost, types
 
     def kaon_tables(self) -> tuple[pa.Table, pa.Table]:
         """(ok tracks matched to kaons, their beamline states)."""
@@ -807,7 +890,7 @@ def read_entries(run: RunInput, truth: DatasetTruth, progress=None) -> dict[str,
 def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth,
                    tracks_of: EntryTracks) -> tuple[dict, FitterArrays]:
     arrays = FitterArrays()
-    chi2_ndf, ghost_ok = tracks_of.ok_tracks()
+    chi2_ndf, ghost_ok, type_ok = tracks_of.ok_tracks()
     tracks = {
         "total": tracks_of.total,
         "ok": int(chi2_ndf.size),
@@ -822,14 +905,14 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         resolution = _section(False, note, location=RESOLUTION_LOCATION)
         pulls = _section(False, note, location=PULL_LOCATION)
     else:
-        first_all, first_types = tracks_of.first_hit()
-        long = first_types == "long"
-        arrays.p_true = first_all["p_true"][long]
-        arrays.residuals = {"dp_over_p": first_all["dp_over_p"][long]}
+        first = tracks_of.first_hit()
+        long = first["long"]
+        arrays.p_true = long["p_true"]
+        arrays.residuals = {"dp_over_p": long["dp_over_p"]}
         for var in ("x", "y", "tx", "ty"):
-            arrays.residuals[var] = first_all[f"res_{var}"][long]
-        arrays.pulls = {par: first_all[f"pull_{par}"][long] for par in PULL_PARAMETERS}
-        empty = not long.any()
+            arrays.residuals[var] = long[f"res_{var}"]
+        arrays.pulls = {par: long[f"pull_{par}"] for par in PULL_PARAMETERS}
+        empty = arrays.p_true.size == 0
         note = "no matched long track with a fitted first-hit state" if empty else None
         resolution = _section(
             not empty, note, location=RESOLUTION_LOCATION, track_type="long", p_edges_mev=P_EDGES_MEV.tolist(),
@@ -839,14 +922,14 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
         )
         by_type = {}
         for kind in TRACK_TYPES:
-            rows = first_types == kind
-            if rows.any():
-                by_type[kind] = {"n_tracks": int(rows.sum()),
-                                 **{par: pull_summary(first_all[f"pull_{par}"][rows]) for par in PULL_PARAMETERS}}
+            n_tracks = first[kind]["pull_x"].size
+            if n_tracks:
+                by_type[kind] = {"n_tracks": int(n_tracks),
+                                 **{par: pull_summary(first[kind][f"pull_{par}"]) for par in PULL_PARAMETERS}}
         pulls = _section(not empty, note, location=PULL_LOCATION, track_type="long",
                          parameters={par: pull_summary(arrays.pulls[par]) for par in PULL_PARAMETERS},
                          by_type=by_type)
-        del first_all, first_types
+        del first, long
 
     # χ²/ndf (Fig. 3)
     chi2_section = chi2_summary(chi2_ndf, ghost_ok, run.has_mc)
@@ -854,6 +937,16 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
     if run.has_mc:
         arrays.chi2_ndf_real = chi2_ndf[~ghost_ok & np.isfinite(chi2_ndf)]
         arrays.chi2_ndf_ghost = chi2_ndf[ghost_ok & np.isfinite(chi2_ndf)]
+    chi2_section["by_type"] = {}
+    for i, kind in enumerate(TRACK_TYPES):
+        rows = type_ok == i
+        if rows.any():
+            chi2_section["by_type"][kind] = chi2_summary(chi2_ndf[rows], ghost_ok[rows], run.has_mc)
+            values, ghost = chi2_ndf[rows], ghost_ok[rows]
+            finite = np.isfinite(values)
+            arrays.chi2_ndf_by_type[kind] = ((values[finite & ~ghost], values[finite & ghost]) if run.has_mc
+                                             else (values[finite], np.zeros(0)))
+    del type_ok
 
     # B_s mass (Fig. 4)
     if not run.has_mc:

@@ -36,6 +36,7 @@ from pkf.report.metrics import (  # noqa: E402
     ETA_EDGES,
     MASS_WINDOW_MEV,
     P_EDGES_MEV,
+    TRACK_TYPES,
     ReportData,
 )
 
@@ -352,6 +353,70 @@ def _plot_mass(data: ReportData, out: Path) -> list[Plot]:
     return [Plot("mass.png", caption)]
 
 
+def _plot_chi2_types(data: ReportData, out: Path) -> list[Plot]:
+    """χ²/ndf of real and ghost tracks per entry (rows) and track type (columns), and per type the
+    real-track efficiency vs ghost rejection of every entry (last column)."""
+    names = [n for n in data.entry_order if data.arrays[n].chi2_ndf_by_type]
+    kinds = [k for k in TRACK_TYPES if any(k in data.arrays[n].chi2_ndf_by_type for n in names)]
+    if not names or len(kinds) < 2:  # one type only: chi2.png shows it
+        return []
+    colors = _colors(names)
+    fig, axes = plt.subplots(len(names) + 1, len(kinds), figsize=(11 * len(kinds), 8 * (len(names) + 1)),
+                             squeeze=False, gridspec_kw={"hspace": 0.35})
+    for row, name in enumerate(names):
+        by_type = data.arrays[name].chi2_ndf_by_type
+        has_mc = data.summary["entries"][name]["chi2"]["has_mc"]
+        for col, kind in enumerate(kinds):
+            ax = axes[row, col]
+            real, ghost = by_type.get(kind, (np.zeros(0), np.zeros(0)))
+            series = [("real", real, "black"), ("ghost", ghost, "#FF3333")] if has_mc else [("all", real, "black")]
+            drawn = False
+            for label, values, color in series:
+                if values.size:
+                    h = hist.Hist(hist.axis.Regular(50, 0, 10, name="chi2ndf"))
+                    h.fill(np.clip(values, 0, 10 - 1e-9))  # overflow into the last bin
+                    mplhep.histplot(h, ax=ax, density=True, yerr=False, color=color,
+                                    label=f"{label} ({values.size})")
+                    drawn = True
+            ax.set_title(f"{name}: {kind}", fontsize=24)
+            if not drawn:
+                _no_data(ax, f"no {kind} track")
+                continue
+            ax.set_yscale("log")
+            ax.set_ylim(None, ax.get_ylim()[1] * 5)
+            ax.set_xlim(0, 10)
+            ax.set_xlabel(r"$\chi^2_\mathrm{track}/N_\mathrm{dof}$")
+            ax.set_ylabel("normalised")
+            ax.legend(fontsize=16, loc="upper right")
+    for col, kind in enumerate(kinds):
+        ax = axes[-1, col]
+        drawn = False
+        for i, name in enumerate(names):
+            section = data.summary["entries"][name]["chi2"]["by_type"].get(kind)
+            scan = (section or {}).get("cut_scan") or {}
+            if scan.get("real_efficiency") is None or scan.get("ghost_rejection") is None:
+                continue
+            eff = np.array([np.nan if v is None else v for v in scan["real_efficiency"]])
+            rej = np.array([np.nan if v is None else v for v in scan["ghost_rejection"]])
+            ax.plot(eff, rej, marker=_MARKERS[i % len(_MARKERS)], color=colors[name], label=name,
+                    markersize=10, lw=2)
+            drawn = True
+        ax.set_title(f"{kind}: efficiency vs ghost rejection", fontsize=24)
+        if not drawn:
+            _no_data(ax, f"no {kind} ghost or real tracks to compare")
+            continue
+        ax.set_xlabel("real track efficiency")
+        ax.set_ylabel("ghost rejection")
+        ax.set_xlim(0, 1.02)
+        ax.set_ylim(0, 1.02)
+        ax.legend(fontsize=16, loc="lower left")
+    _save(fig, out / "chi2_types.png")
+    caption = ("χ²/ndf of real (black) and ghost (red) tracks per entry and track type (long: VELO+UT+SciFi, "
+               "upstream: VELO+UT, velo: VELO only), normalised, overflow in the last bin; bottom row: per type, "
+               "real-track efficiency vs ghost rejection for upper cuts on χ²/ndf.")
+    return [Plot("chi2_types.png", caption)]
+
+
 # ----------------------------------------------------------------------------- efficiency
 
 
@@ -381,6 +446,43 @@ def _plot_efficiency(data: ReportData, out: Path) -> list[Plot]:
     caption = ("Efficiency for reconstructible long particles (fitted track with status ok matched to the particle) "
                "vs true momentum and pseudorapidity, Clopper–Pearson 68% errors.")
     return [Plot("efficiency.png", caption)]
+
+
+def _plot_efficiency_types(data: ReportData, out: Path) -> list[Plot]:
+    """Efficiency vs p and η per track type (rows), every entry in each panel."""
+    names = [n for n in data.entry_order if data.summary["entries"][n]["efficiency"].get("by_type")]
+    kinds = [k for k in TRACK_TYPES if any(k in data.summary["entries"][n]["efficiency"]["by_type"] for n in names)]
+    if not names or len(kinds) < 2:  # long only: efficiency.png shows it
+        return []
+    colors = _colors(data.entry_order)
+    fig, axes = plt.subplots(len(kinds), 2, figsize=(24, 9 * len(kinds)), squeeze=False, gridspec_kw={"hspace": 0.3})
+    for row, kind in enumerate(kinds):
+        for ax, key, edges, label in ((axes[row, 0], "vs_p", P_EDGES_MEV / 1000.0, r"$p$ [GeV]"),
+                                      (axes[row, 1], "vs_eta", ETA_EDGES, r"$\eta$")):
+            centres, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
+            for i, name in enumerate(names):
+                section = data.summary["entries"][name]["efficiency"]["by_type"].get(kind)
+                if section is None:
+                    continue
+                bins = section[key]
+                eff = np.array([np.nan if v is None else v for v in bins["efficiency"]])
+                lo = np.array([0.0 if v is None else v for v in bins["error_low"]])
+                hi = np.array([0.0 if v is None else v for v in bins["error_high"]])
+                ax.errorbar(centres, eff, xerr=half, yerr=[lo, hi], fmt=_MARKERS[i % len(_MARKERS)],
+                            color=colors[name], label=f"{name} ({section['efficiency']:.3f})")
+            ax.set_title(f"{kind} tracks", fontsize=24)
+            ax.set_xlabel(label)
+            ax.set_ylabel("efficiency")
+            ax.set_ylim(0, 1.1)
+            ax.set_xlim(edges[0], edges[-1])
+            ax.legend(fontsize=16, loc="lower right")
+        axes[row, 0].set_xscale("log")
+    _save(fig, out / "efficiency_types.png")
+    caption = ("Efficiency per track type vs true momentum and pseudorapidity, Clopper–Pearson 68% errors: "
+               "long (≥ 3 VELO hits, x and stereo hits in every SciFi station) found by a long track; upstream "
+               "(≥ 3 VELO and ≥ 3 UT hits) found by an upstream or long track; velo (≥ 3 VELO hits) found by any "
+               "track (all fitted with status ok). The legend gives the integrated efficiency.")
+    return [Plot("efficiency_types.png", caption)]
 
 
 def _plot_timing(data: ReportData, out: Path) -> list[Plot]:
@@ -419,13 +521,14 @@ def _plot_timing(data: ReportData, out: Path) -> list[Plot]:
 def make_plots(data: ReportData, out: Path) -> dict[str, list[Plot]]:
     """Write every plot of the report into ``out``; per section id, the plots written."""
     out = Path(out)
-    taken = {"resolution.png", "chi2.png", "mass.png", "efficiency.png", "timing.png"}
+    taken = {"resolution.png", "chi2.png", "chi2_types.png", "mass.png", "efficiency.png", "efficiency_types.png",
+             "timing.png"}
     with plt.style.context(_STYLE):
         return {
             "resolution": _plot_resolution(data, out),
             "pulls": _plot_pulls(data, out, taken),
-            "chi2": _plot_chi2(data, out),
+            "chi2": _plot_chi2(data, out) + _plot_chi2_types(data, out),
             "mass": _plot_mass(data, out),
-            "efficiency": _plot_efficiency(data, out),
+            "efficiency": _plot_efficiency(data, out) + _plot_efficiency_types(data, out),
             "timing": _plot_timing(data, out),
         }

@@ -10,15 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pkf.physics.constants import CTAU_BS, MASS_BS, MASS_KAON, MASS_PHI
-from pkf.simulation.species import (
-    MINBIAS_FRACTIONS,
-    PDG_BS,
-    PDG_KAON,
-    PDG_PHI,
-    SPECIES_NAMES,
-    species_arrays,
-)
+from pkf.physics.constants import CTAU_BS, MASS_BS, MASS_KAON, MASS_PHI, PDG_BS, PDG_KAON, PDG_PHI
+from pkf.simulation.species import MINBIAS_FRACTIONS, SPECIES_NAMES, species_arrays
 
 GENERATORS = ("minbias", "gun", "bs2phiphi", "pythia", "pythia-bs2phiphi")
 
@@ -184,7 +177,7 @@ def generate_bs2phiphi_decay(
     """One B_s⁰ → φφ, φ → K⁺K⁻ decay chain: 7 particles (B_s, 2 φ, 4 K).
 
     B_s pT ~ Gamma(2) with mean 5 GeV, flat in 2 < η < 5; proper decay length
-    exponential with cτ = 0.455 mm; both decays isotropic; PDG masses (the φ at its
+    exponential with the PDG cτ (`CTAU_BS`, 0.454 mm); both decays isotropic; PDG masses (the φ at its
     pole mass). ``parent_id`` holds 1-based positions within this block (the caller
     offsets them); the B_s is produced at `primary_vertex` by interaction 0.
     """

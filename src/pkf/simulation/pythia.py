@@ -45,7 +45,7 @@ import numpy as np
 
 from pkf.errors import InputError
 from pkf.simulation.generators import PARTICLE_COLUMNS, LuminousRegion, concat_events, sample_interaction_vertices
-from pkf.simulation.species import PDG_BS, PDG_KAON, PDG_PHI
+from pkf.physics.constants import PDG_BS, PDG_KAON, PDG_PHI
 
 PYTHIA_GENERATORS = ("pythia", "pythia-bs2phiphi")
 MISSING_EXTRA = "needs the pythia extra: pip install 'pkf[pythia]'"

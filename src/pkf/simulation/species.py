@@ -1,25 +1,33 @@
 """Particle species: PDG codes, masses [MeV] and charges of what pkf generates.
 
-The masses themselves are physical constants (`pkf.physics.constants`)."""
+The codes and masses are particle data (`pkf.physics.constants`, from Scikit-HEP's `particle`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from pkf.physics.constants import MASS_ELECTRON, MASS_KAON, MASS_MUON, MASS_PION, MASS_PROTON
+from pkf.physics.constants import (
+    MASS_ELECTRON,
+    MASS_KAON,
+    MASS_MUON,
+    MASS_PION,
+    MASS_PROTON,
+    PDG_ELECTRON,
+    PDG_KAON,
+    PDG_MUON,
+    PDG_PION,
+    PDG_PROTON,
+)
 
-PDG_BS = 531
-PDG_PHI = 333
-PDG_KAON = 321
 
 # name -> (PDG code of the positive particle, mass [MeV], charge sign of that code).
 # Electrons and muons: PDG code 11/13 is the negative lepton.
 SPECIES = {
-    "pion": (211, MASS_PION, +1),
-    "kaon": (321, MASS_KAON, +1),
-    "proton": (2212, MASS_PROTON, +1),
-    "electron": (11, MASS_ELECTRON, -1),
-    "muon": (13, MASS_MUON, -1),
+    "pion": (PDG_PION, MASS_PION, +1),
+    "kaon": (PDG_KAON, MASS_KAON, +1),
+    "proton": (PDG_PROTON, MASS_PROTON, +1),
+    "electron": (PDG_ELECTRON, MASS_ELECTRON, -1),
+    "muon": (PDG_MUON, MASS_MUON, -1),
 }
 SPECIES_NAMES = tuple(SPECIES)
 
