@@ -51,6 +51,13 @@ def _pit_width(pit):
     return gaussian_core(ndtri(np.clip(pit, 1e-12, 1.0 - 1e-12))).sigma
 
 
+def _covers(pull):
+    """Whether q/p pulls say the written covariances cover the errors (issue 15): RMS in
+    [0.8, 1.25] and at least 68 % of them within ±1.2."""
+    rms = np.sqrt(np.mean(pull**2))
+    return 0.8 <= rms <= 1.25 and np.mean(np.abs(pull) < 1.2) >= 0.68
+
+
 def _sigma68(values):
     """Half-width of the central 68 % interval (robust for these skewed distributions)."""
     lo, hi = np.percentile(values, [16, 84])
@@ -118,16 +125,18 @@ def test_electrons_where_the_field_measures_across_material(material_in_field_el
     """Issue 7's electron criteria as written, where a GSF can meet them: the momentum is
     measured across material in which most electrons radiate more than the resolution
     (telescope, 3 % X0 planes in 2 T). At the first hit the Gaussian core of δp/p is
-    ≥ 10 % narrower than the reference Kalman fit's and the q/p pull core is in
-    [0.9, 1.2], where the Kalman fit's is > 2. Measured on five samples: core −30 … −40 %,
-    pull core 0.97–1.05 (Kalman 3.2–3.8). The smoothed posteriors are calibrated at the
+    ≥ 10 % narrower than the reference Kalman fit's and the q/p covariance covers the
+    error (`_covers`; the written q/p variance is the mixture's about the written q/p),
+    where the Kalman fit's pull core is > 2. Measured on five samples: core −30 … −40 %,
+    Kalman pull core 3.2–3.8; this sample: GSF pull RMS 1.00, core 0.66 (the posterior is
+    skewed: its Gaussian core is narrower than its RMS). The smoothed posteriors are calibrated at the
     first and last hit: Φ⁻¹(PIT) core width in [0.9, 1.1], PIT uniform (KS p > 1e−3)."""
     sample, kalman, gsf, ok = material_in_field_electrons
     assert ok.sum() > 900
     dp_k, pull_k = _location(sample, kalman, "first_hit", ok)
     dp_g, pull_g, pit = _location(sample, gsf, "first_hit", ok)
     assert gaussian_core(dp_g).sigma <= 0.9 * gaussian_core(dp_k).sigma
-    assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2 and gaussian_core(pull_k).sigma > 2.0
+    assert _covers(pull_g) and gaussian_core(pull_k).sigma > 2.0
     for location in ("first_hit", "last_hit"):
         pit = _location(sample, gsf, location, ok)[2]
         assert 0.9 <= _pit_width(pit) <= 1.1 and kstest(pit, "uniform").pvalue > 1e-3, location
@@ -137,15 +146,15 @@ def test_electrons_in_the_built_in_telescope(telescope_electrons):
     """With 1 % X0 planes in 1 T half the electrons lose less than the 2 % resolution, and
     for them the Kalman fit is already optimal: the Gaussian core stays within 5 % of the
     Kalman fit's (measured −4 … +4 %), while the RMS of δp/p at the first hit drops by
-    ≥ 30 % (measured −51 %) and the q/p pull core is within [0.9, 1.2] (1.00–1.10; the
-    Kalman fit's 1.25–1.32 is not)."""
+    ≥ 30 % (measured −51 %) and the q/p covariance covers the error (`_covers`; the
+    Kalman fit's pull core 1.25–1.32 is too wide)."""
     sample, kalman, gsf, ok = telescope_electrons
     assert ok.sum() > 900
     dp_k, pull_k = _location(sample, kalman, "first_hit", ok)
     dp_g, pull_g, _ = _location(sample, gsf, "first_hit", ok)
     rms_k, rms_g = np.sqrt(np.mean(dp_k**2)), np.sqrt(np.mean(dp_g**2))
     assert rms_g < 0.7 * rms_k, (rms_g, rms_k)
-    assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2
+    assert _covers(pull_g)
     assert gaussian_core(pull_k).sigma > 1.2
     assert gaussian_core(dp_g).sigma < 1.05 * gaussian_core(dp_k).sigma
 
@@ -171,8 +180,9 @@ def test_electrons_lhcb_like_last_hit(lhcb_electrons):
     The GSF's central 68 % of δp/p is ≥ 5 % narrower than the Kalman fit's (measured
     −6 … −26 % on six samples, −11 % on this one), its posterior is calibrated in width
     (Φ⁻¹(PIT) core in [0.9, 1.1], measured 0.97–1.03; the PIT's shape is not uniform, KS
-    p ~1e−4–1e−6) and its q/p pull core in [0.8, 1.2] (0.83–0.95) where the Kalman fit's
-    is > 3 (4.4–6.4).
+    p ~1e−4–1e−6) and ≥ 68 % of its q/p pulls are within ±1.2 (measured 0.90) where the
+    Kalman fit's are not (0.30; pull core 4.4–6.4). (The pull RMS, 2.3 on 1,500 tracks,
+    is that of the ~1 % whose fit fails outright, |pull| > 10, in every fitter.)
     Its Gaussian core is ~2× the Kalman fit's, whose narrow core is the no-radiation
     hypothesis — right for the ~45 % who do not radiate."""
     sample, kalman, gsf, ok = lhcb_electrons
@@ -180,7 +190,7 @@ def test_electrons_lhcb_like_last_hit(lhcb_electrons):
     dp_g, pull_g, pit = _location(sample, gsf, "last_hit", ok)
     assert _sigma68(dp_g) <= 0.95 * _sigma68(dp_k)
     assert 0.9 <= _pit_width(pit) <= 1.1
-    assert 0.8 <= gaussian_core(pull_g).sigma <= 1.2 and gaussian_core(pull_k).sigma > 3.0
+    assert np.mean(np.abs(pull_g) < 1.2) >= 0.68 and np.mean(np.abs(pull_k) < 1.2) < 0.5
 
 
 @pytest.mark.xfail(strict=True, reason="lhcb-like has almost no field between VELO and UT: the "
@@ -192,6 +202,22 @@ def test_electrons_lhcb_like_first_hit_q_over_p_is_not_measured(lhcb_electrons):
     dp_g, pull_g, _ = _location(sample, gsf, "first_hit", ok)
     assert gaussian_core(dp_g).sigma <= 0.9 * gaussian_core(dp_k).sigma
     assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2
+
+
+def test_electrons_lhcb_like_first_hit_and_beamline_covariances_cover_the_error(lhcb_electrons):
+    """Issue 15: the first-hit q/p is not measured (above), so the honest answer is a wide q/p
+    error. The "core" output wrote the width of the mixture's Gaussian core, the ~20 % who
+    have not radiated before the magnet: covariances claiming 1 % where the error is 30 %
+    (q/p pull RMS 51, core 11.6, 25 % within ±1.2 on 1,500 tracks). It now writes the
+    mixture's q/p second moment about the written q/p: at the first hit and at the
+    beamline (truth: the production q/p) pull RMS 1.01 / 1.04, 80 % / 79 % within ±1.2."""
+    sample, _, gsf, ok = lhcb_electrons
+    _, pull_first = _location(sample, gsf, "first_hit", ok)[:2]
+    _, state, cov = gsf.locations["beamline"]
+    truth = sample.production_qop[sample.batch.hit_row[sample.batch.offsets[:-1]]]
+    pull_beamline = ((state[:, 4] - truth) / np.sqrt(cov[:, 4, 4]))[ok]
+    assert _covers(pull_first), np.sqrt(np.mean(pull_first**2))
+    assert _covers(pull_beamline), np.sqrt(np.mean(pull_beamline**2))
 
 
 def test_first_hit_distribution_narrows_on_lhcb_like(lhcb_electrons):
