@@ -17,7 +17,7 @@ import pkf
 from pkf.errors import InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
-from pkf.fit.options import GSF_OUTPUTS, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
+from pkf.fit.options import GSF_OUTPUTS, HYPOTHESES, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
 from pkf.pipeline.config import PATTERNS
 from pkf.pipeline.reconstruct import EVENTS_PER_BATCH
 from pkf.simulation.generators import GENERATORS
@@ -78,6 +78,9 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--smoother", default="weighted-mean", show_default=True, type=click.Choice(SMOOTHERS[:2]),
               help="Kalman fitters: combine the forward and backward filters by their weighted mean, "
                    "or run the Rauch–Tung–Striebel smoother (the same states).")
+@click.option("--hypothesis", default=KalmanOptions.hypothesis, show_default=True, type=click.Choice(HYPOTHESES),
+              help="Kalman fitters: the particle assumed by the material effects; electron adds the "
+                   "Bethe–Heitler mean loss and its variance to q/p at every plane.")
 @click.option("--gx2f-max-updates", default=GX2FOptions.max_updates, show_default=True,
               type=click.IntRange(min=1), help="GX2F: at most this many Gauss–Newton updates per fit.")
 @click.option("--max-components", default=GSFOptions.max_components, show_default=True,
@@ -110,7 +113,7 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
     """
     from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
 
-    kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"))
+    kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"), options.pop("hypothesis"))
     gx2f = GX2FOptions(max_updates=options.pop("gx2f_max_updates"))
     gsf = GSFOptions(options.pop("max_components"), options.pop("gsf_weight_cut"), options.pop("gsf_output"))
     config = ReconstructionConfig(fitters=fitters or ("parametrized",), kalman=kalman, gx2f=gx2f, gsf=gsf, **options)

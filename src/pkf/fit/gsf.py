@@ -49,6 +49,14 @@ PIT = CDF of the smoothed q/p mixture at the true q/p, which is uniform and whos
   node it cut off the forward mixture's bremsstrahlung tail (last-hit PIT width 1.35–1.48
   on lhcb-like, 1.15–1.19 in the telescope with 3 % X0 planes); the forward filtered
   mixture there has no prior at all (PIT width 0.97–1.05).
+- For a track the magnet does not measure (VELO-only, upstream: ``batch.track_type``
+  not long), the backward prior's 10 % q/p width was information the hits do not have:
+  on VELO-only tracks, whose q/p is a momentum assumption (`pkf.fit.seed.velo_qop_prior`),
+  the written q/p error was 0.05× the assumption's (median; minimum bias ν = 7.6, truth
+  pattern), on upstream tracks the q/p pull RMS 3.0 (reference Kalman 1.3). Their backward
+  prior has a q/p width BACKWARD_VAGUE_QOP_SCALE (100) × the seed's, so that the smoothed
+  q/p is the forward filter's: the prior and its width for VELO-only tracks. (They do not
+  cross the magnet, whose linearisation needs the 10 %.)
 - The seed's q/p comes from a fit of all hits, the magnet's measurement with a 10 %
   width: used as the forward filter's prior it was counted twice, and pulled every
   node upstream of the magnet to "no loss" (lhcb-like last-VELO-hit PIT width 1.7–1.8).
@@ -73,8 +81,8 @@ Output per node (`output`):
   did not radiate where the detector cannot see it: on lhcb-like, where ~80 % radiate
   between the first hit and the magnet (no field there), it claimed 1 % where the error
   is 30 % (issue 15; first-hit q/p pull RMS 51, 25 % within ±1.2, electron gun 2–50 GeV,
-  1,500 tracks). With the second moment: RMS 1.01, 80 % within ±1.2 (beamline 1.04,
-  79 %); the pulls' Gaussian core is then narrower than 1 (0.67) because the posterior
+  1,500 tracks). With the second moment: RMS 0.99, 80 % within ±1.2 (beamline 1.02,
+  79 %); the pulls' Gaussian core is then narrower than 1 (0.65) because the posterior
   is skewed: a peak and a long radiation tail.
 - "max-weight": ACTS' choice: the largest-weight component's mean, with the mixture's
   covariance about it.
@@ -142,6 +150,7 @@ from pkf.fit.kalman import NodeStages, node_stages, scalar_update
 from pkf.physics.linalg import add_matvec5, copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
+from pkf.fit.seed import TRACK_LONG
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 from pkf.params.bethe_heitler import (
@@ -165,6 +174,9 @@ _CORE_TRUNCATED_VARIANCE = 1.0 - 2.0 * _CORE_WINDOW * math.exp(-0.5 * _CORE_WIND
 #: Vague prior of the backward filter (see the module docstring).
 BACKWARD_PRIOR_VARIANCES = (400.0, 400.0, 0.01, 0.01)
 BACKWARD_PRIOR_QOP_FRACTION = 0.1
+#: Backward prior of tracks that do not cross the magnet (VELO-only, upstream): q/p width
+#: this many times the seed's (module docstring).
+BACKWARD_VAGUE_QOP_SCALE = 100.0
 #: The forward filter's seed has a q/p width of at least this fraction of |q/p| (module docstring).
 SEED_QOP_FRACTION = 1.0
 #: "mode" output: components within this many σ (in q/p) of the mode component form the peak.
@@ -853,12 +865,13 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 @nb.njit(cache=True, error_model="numpy")
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
                buf, pbuf, count, nearest, nearest_d, alive, scratch, bh, vec, out_state, out_cov, out_mix,
-               stages, lo, out_qop_var):
+               stages, lo, out_qop_var, vague_qop):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
     marginals into out_mix (nodes, K, 3) if it has rows, and the means and covariances of
     the predicted, filtered and smoothed mixtures into rows lo… of `stages` (a
     `NodeStages` with smoothed rows) if it has rows, and each node's `_qop_second_moment`
-    about its output q/p into out_qop_var (n). Returns (status, χ², number of
+    about its output q/p into out_qop_var (n); `vague_qop`: the backward prior's q/p width
+    is BACKWARD_VAGUE_QOP_SCALE × the seed's (a track the magnet does not measure). Returns (status, χ², number of
     components of the smoothed mixture at the first node)."""
     n = z.size
     w, mu, cov = buf[0], buf[1], buf[2]
@@ -927,6 +940,8 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     cov[0, 4, 4] = (BACKWARD_PRIOR_QOP_FRACTION * mean[4]) ** 2
     if not cov[0, 4, 4] > 0.0:
         cov[0, 4, 4] = seed_cov[4, 4]
+    if vague_qop:
+        cov[0, 4, 4] = max(cov[0, 4, 4], BACKWARD_VAGUE_QOP_SCALE**2 * seed_cov[4, 4])
     nc = 1
     n_first = n_last
     for k in range(n - 1, -1, -1):
@@ -984,13 +999,15 @@ class GsfFitter(NamedTuple):
     count: np.ndarray
     stages: NodeStages
     qop_var: np.ndarray
+    vague_qop: np.ndarray
 
 
 def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray,
-               stages: NodeStages | None = None) -> GsfFitter:
+               stages: NodeStages | None = None, vague_qop: np.ndarray | None = None) -> GsfFitter:
     """The GSF of context `ctx` for `n_tracks` tracks of up to `n_nodes` nodes, keeping the
     smoothed q/p mixtures in `qop_mixture` if it has rows and the mixtures' means and
-    covariances per stage in `stages` if given."""
+    covariances per stage in `stages` if given; `vague_qop` (n_tracks, bool): the tracks
+    whose backward prior has a vague q/p (default: none)."""
     mc = ctx.max_components
     k_bh = ctx.bh_coefficients.shape[1]
     cap = max(mc * max(k_bh, 1), mc * mc, 2)
@@ -1002,7 +1019,8 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(cap, dtype=np.bool_),
         np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
-        node_stages(0, smoothed=True) if stages is None else stages, np.zeros(n_nodes))
+        node_stages(0, smoothed=True) if stages is None else stages, np.zeros(n_nodes),
+        np.zeros(n_tracks, dtype=np.bool_) if vague_qop is None else np.ascontiguousarray(vague_qop, dtype=np.bool_))
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -1022,7 +1040,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     status, chi2, n_comp = _fit_track(f.ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                       f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.nearest_d,
                                       f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
-                                      f.qop_var)
+                                      f.qop_var, f.vague_qop[t])
     f.out_n_components[t] = n_comp
     return status, chi2
 
@@ -1059,8 +1077,9 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
                                 output=OUTPUTS[mixture.output])
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
+    vague = None if batch.track_type is None else batch.track_type != TRACK_LONG
     fitter = gsf_fitter(ctx, max_nodes(batch.offsets), batch.n_tracks,
-                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages)
+                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages, vague)
     result = GsfResult.empty(batch, n_components=fitter.out_n_components, qop_mixture=fitter.out_qop_mixture)
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
     fit_locations(result, batch, beamline_extrapolator)

@@ -96,7 +96,7 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
         _CONTEXTS[key] = ReconstructionContext(
             geometry=geometry,
             pattern=config.pattern,
-            fitters_ext=[(f, f.make_extrapolator(geometry, config.params)) for f in fitters],
+            fitters_ext=[(f, f.extrapolator(geometry, config.params, config.kalman.hypothesis)) for f in fitters],
             # the forward extension of the triplet pattern uses the parametrized extrapolations
             pattern_ext=(load_parameters(geometry, config.params).extrapolator(geometry)
                          if config.pattern == "triplet" else None),
