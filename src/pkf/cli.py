@@ -89,8 +89,8 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
               type=click.FloatRange(min=0.0, max=1.0, max_open=True),
               help="GSF: drop mixture components below this share of the total weight.")
 @click.option("--gsf-output", default=GSFOptions.output, show_default=True, type=click.Choice(GSF_OUTPUTS),
-              help="GSF: the state written per node: the Gaussian core of the mixture, its mode, "
-                   "its heaviest component, or its mean.")
+              help="GSF: the state written per node: the centre of the mixture's Gaussian core, its mode, "
+                   "its heaviest component, or its mean (each with the mixture's q/p variance about it).")
 @click.option("--track-states", is_flag=True,
               help="Also write the track_states table: every node's predicted, filtered and smoothed "
                    "state, residuals and χ² (large: ~3 rows per hit and fitter).")

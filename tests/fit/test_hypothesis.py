@@ -78,8 +78,8 @@ def test_electron_hypothesis_covers_the_first_hit_q_over_p_error(electron_gun, f
     every long track and > 100× wider on most (VELO-only tracks keep about the same
     momentum assumption),
     and the pull RMS is in [0.7, 1.4] (measured 1.22 on 1,500 tracks, both
-    fitters; the truth: the local q/p of the reference, the production q/p of the
-    parametrized fitter, whose states carry it)."""
+    fitters; the truth: the local q/p, which the parametrized fitter's q/p is under the
+    electron hypothesis)."""
     sample = electron_gun
     geometry = sample.geometry
     base = sample.extrapolator if fitter == "reference" else shipped_parameters(geometry).extrapolator(geometry)
@@ -93,8 +93,6 @@ def test_electron_hypothesis_covers_the_first_hit_q_over_p_error(electron_gun, f
     pulls = {}
     for hypothesis, result in results.items():
         qop, var, truth = _first_hit_qop(sample, result)
-        if fitter == "parametrized":
-            truth = sample.production_qop[sample.batch.hit_row[sample.batch.offsets[:-1]]]
         pulls[hypothesis] = ((qop - truth) / np.sqrt(var))[ok]
         results[hypothesis] = var[ok]
     ratio = results["electron"] / results["pion"]
