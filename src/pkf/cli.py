@@ -17,7 +17,7 @@ import pkf
 from pkf.errors import InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
-from pkf.fit.options import GSF_OUTPUTS, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
+from pkf.fit.options import GSF_OUTPUTS, HYPOTHESES, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
 from pkf.pipeline.config import PATTERNS
 from pkf.pipeline.reconstruct import EVENTS_PER_BATCH
 from pkf.simulation.generators import GENERATORS
@@ -78,6 +78,9 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--smoother", default="weighted-mean", show_default=True, type=click.Choice(SMOOTHERS[:2]),
               help="Kalman fitters: combine the forward and backward filters by their weighted mean, "
                    "or run the Rauch–Tung–Striebel smoother (the same states).")
+@click.option("--hypothesis", default=KalmanOptions.hypothesis, show_default=True, type=click.Choice(HYPOTHESES),
+              help="Kalman fitters: the particle assumed by the material effects; electron adds the "
+                   "Bethe–Heitler mean loss and its variance to q/p at every plane.")
 @click.option("--gx2f-max-updates", default=GX2FOptions.max_updates, show_default=True,
               type=click.IntRange(min=1), help="GX2F: at most this many Gauss–Newton updates per fit.")
 @click.option("--max-components", default=GSFOptions.max_components, show_default=True,
@@ -86,8 +89,8 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
               type=click.FloatRange(min=0.0, max=1.0, max_open=True),
               help="GSF: drop mixture components below this share of the total weight.")
 @click.option("--gsf-output", default=GSFOptions.output, show_default=True, type=click.Choice(GSF_OUTPUTS),
-              help="GSF: the state written per node: the Gaussian core of the mixture, its mode, "
-                   "its heaviest component, or its mean.")
+              help="GSF: the state written per node: the centre of the mixture's Gaussian core, its mode, "
+                   "its heaviest component, or its mean (each with the mixture's q/p variance about it).")
 @click.option("--track-states", is_flag=True,
               help="Also write the track_states table: every node's predicted, filtered and smoothed "
                    "state, residuals and χ² (large: ~3 rows per hit and fitter).")
@@ -110,7 +113,7 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
     """
     from pkf.pipeline.reconstruct import ReconstructionConfig, run_reconstruction
 
-    kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"))
+    kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"), options.pop("hypothesis"))
     gx2f = GX2FOptions(max_updates=options.pop("gx2f_max_updates"))
     gsf = GSFOptions(options.pop("max_components"), options.pop("gsf_weight_cut"), options.pop("gsf_output"))
     config = ReconstructionConfig(fitters=fitters or ("parametrized",), kalman=kalman, gx2f=gx2f, gsf=gsf, **options)

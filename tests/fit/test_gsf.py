@@ -10,7 +10,8 @@ from scipy.stats import kstest
 from pkf.fit.gsf import _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cdf
 from pkf.fit.reference import reference_extrapolator
 from pkf.fit.options import GSFOptions
-from pkf.fit.tracks import FitOptions
+from pkf.fit.hypothesis import with_hypothesis
+from pkf.fit.tracks import FitOptions, fit_batch
 from pkf.geometry import load_geometry, parse_geometry
 from pkf.params.gauss import gaussian_core
 from pkf.physics.constants import MASS_PION
@@ -49,6 +50,13 @@ def _location(sample, result, location, select):
 def _pit_width(pit):
     """Core width of Φ⁻¹(PIT): 1 for a calibrated posterior."""
     return gaussian_core(ndtri(np.clip(pit, 1e-12, 1.0 - 1e-12))).sigma
+
+
+def _covers(pull):
+    """Whether q/p pulls say the written covariances cover the errors (issue 15): RMS in
+    [0.8, 1.25] and at least 68 % of them within ±1.2."""
+    rms = np.sqrt(np.mean(pull**2))
+    return 0.8 <= rms <= 1.25 and np.mean(np.abs(pull) < 1.2) >= 0.68
 
 
 def _sigma68(values):
@@ -118,16 +126,18 @@ def test_electrons_where_the_field_measures_across_material(material_in_field_el
     """Issue 7's electron criteria as written, where a GSF can meet them: the momentum is
     measured across material in which most electrons radiate more than the resolution
     (telescope, 3 % X0 planes in 2 T). At the first hit the Gaussian core of δp/p is
-    ≥ 10 % narrower than the reference Kalman fit's and the q/p pull core is in
-    [0.9, 1.2], where the Kalman fit's is > 2. Measured on five samples: core −30 … −40 %,
-    pull core 0.97–1.05 (Kalman 3.2–3.8). The smoothed posteriors are calibrated at the
+    ≥ 10 % narrower than the reference Kalman fit's and the q/p covariance covers the
+    error (`_covers`; the written q/p variance is the mixture's about the written q/p),
+    where the Kalman fit's pull core is > 2. Measured on five samples: core −30 … −40 %,
+    Kalman pull core 3.2–3.8; this sample: GSF pull RMS 1.00, core 0.66 (the posterior is
+    skewed: its Gaussian core is narrower than its RMS). The smoothed posteriors are calibrated at the
     first and last hit: Φ⁻¹(PIT) core width in [0.9, 1.1], PIT uniform (KS p > 1e−3)."""
     sample, kalman, gsf, ok = material_in_field_electrons
     assert ok.sum() > 900
     dp_k, pull_k = _location(sample, kalman, "first_hit", ok)
     dp_g, pull_g, pit = _location(sample, gsf, "first_hit", ok)
     assert gaussian_core(dp_g).sigma <= 0.9 * gaussian_core(dp_k).sigma
-    assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2 and gaussian_core(pull_k).sigma > 2.0
+    assert _covers(pull_g) and gaussian_core(pull_k).sigma > 2.0
     for location in ("first_hit", "last_hit"):
         pit = _location(sample, gsf, location, ok)[2]
         assert 0.9 <= _pit_width(pit) <= 1.1 and kstest(pit, "uniform").pvalue > 1e-3, location
@@ -137,15 +147,15 @@ def test_electrons_in_the_built_in_telescope(telescope_electrons):
     """With 1 % X0 planes in 1 T half the electrons lose less than the 2 % resolution, and
     for them the Kalman fit is already optimal: the Gaussian core stays within 5 % of the
     Kalman fit's (measured −4 … +4 %), while the RMS of δp/p at the first hit drops by
-    ≥ 30 % (measured −51 %) and the q/p pull core is within [0.9, 1.2] (1.00–1.10; the
-    Kalman fit's 1.25–1.32 is not)."""
+    ≥ 30 % (measured −51 %) and the q/p covariance covers the error (`_covers`; the
+    Kalman fit's pull core 1.25–1.32 is too wide)."""
     sample, kalman, gsf, ok = telescope_electrons
     assert ok.sum() > 900
     dp_k, pull_k = _location(sample, kalman, "first_hit", ok)
     dp_g, pull_g, _ = _location(sample, gsf, "first_hit", ok)
     rms_k, rms_g = np.sqrt(np.mean(dp_k**2)), np.sqrt(np.mean(dp_g**2))
     assert rms_g < 0.7 * rms_k, (rms_g, rms_k)
-    assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2
+    assert _covers(pull_g)
     assert gaussian_core(pull_k).sigma > 1.2
     assert gaussian_core(dp_g).sigma < 1.05 * gaussian_core(dp_k).sigma
 
@@ -162,6 +172,13 @@ def test_electrons_lhcb_like_where_the_magnet_measures(lhcb_electrons):
     dp_k, _ = _location(sample, kalman, "last_ut_hit", ok)
     dp_g, pull_g, pit = _location(sample, gsf, "last_ut_hit", ok)
     assert 0.9 <= gaussian_core(dp_g).sigma / gaussian_core(dp_k).sigma <= 1.1
+    # issue 15: no worse than the Kalman fit under the electron hypothesis (1,500 tracks:
+    # δp/p core 0.317 % GSF, 0.336 % electron Kalman, 0.316 % pion Kalman)
+    electron_ext = with_hypothesis(sample.extrapolator, sample.geometry, "electron")
+    electron_kalman = fit_batch(electron_ext, sample.batch, FitOptions.from_flat(iterations=2, hypothesis="electron"),
+                                sample.seeds, sample.seed_covs)
+    dp_e, _ = _location(sample, electron_kalman, "last_ut_hit", ok & (electron_kalman.status == 0))
+    assert gaussian_core(dp_g).sigma <= gaussian_core(dp_e).sigma
     assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2
     assert 0.9 <= _pit_width(pit) <= 1.1
 
@@ -171,8 +188,9 @@ def test_electrons_lhcb_like_last_hit(lhcb_electrons):
     The GSF's central 68 % of δp/p is ≥ 5 % narrower than the Kalman fit's (measured
     −6 … −26 % on six samples, −11 % on this one), its posterior is calibrated in width
     (Φ⁻¹(PIT) core in [0.9, 1.1], measured 0.97–1.03; the PIT's shape is not uniform, KS
-    p ~1e−4–1e−6) and its q/p pull core in [0.8, 1.2] (0.83–0.95) where the Kalman fit's
-    is > 3 (4.4–6.4).
+    p ~1e−4–1e−6) and ≥ 68 % of its q/p pulls are within ±1.2 (measured 0.90) where the
+    Kalman fit's are not (0.30; pull core 4.4–6.4). (The pull RMS, 2.3 on 1,500 tracks,
+    is that of the ~1 % whose fit fails outright, |pull| > 10, in every fitter.)
     Its Gaussian core is ~2× the Kalman fit's, whose narrow core is the no-radiation
     hypothesis — right for the ~45 % who do not radiate."""
     sample, kalman, gsf, ok = lhcb_electrons
@@ -180,7 +198,7 @@ def test_electrons_lhcb_like_last_hit(lhcb_electrons):
     dp_g, pull_g, pit = _location(sample, gsf, "last_hit", ok)
     assert _sigma68(dp_g) <= 0.95 * _sigma68(dp_k)
     assert 0.9 <= _pit_width(pit) <= 1.1
-    assert 0.8 <= gaussian_core(pull_g).sigma <= 1.2 and gaussian_core(pull_k).sigma > 3.0
+    assert np.mean(np.abs(pull_g) < 1.2) >= 0.68 and np.mean(np.abs(pull_k) < 1.2) < 0.5
 
 
 @pytest.mark.xfail(strict=True, reason="lhcb-like has almost no field between VELO and UT: the "
@@ -192,6 +210,22 @@ def test_electrons_lhcb_like_first_hit_q_over_p_is_not_measured(lhcb_electrons):
     dp_g, pull_g, _ = _location(sample, gsf, "first_hit", ok)
     assert gaussian_core(dp_g).sigma <= 0.9 * gaussian_core(dp_k).sigma
     assert 0.9 <= gaussian_core(pull_g).sigma <= 1.2
+
+
+def test_electrons_lhcb_like_first_hit_and_beamline_covariances_cover_the_error(lhcb_electrons):
+    """Issue 15: the first-hit q/p is not measured (above), so the honest answer is a wide q/p
+    error. The "core" output wrote the width of the mixture's Gaussian core, the ~20 % who
+    have not radiated before the magnet: covariances claiming 1 % where the error is 30 %
+    (q/p pull RMS 51, core 11.6, 25 % within ±1.2 on 1,500 tracks). It now writes the
+    mixture's q/p second moment about the written q/p: at the first hit and at the
+    beamline (truth: the production q/p) pull RMS 0.99 / 1.02, 80 % / 79 % within ±1.2."""
+    sample, _, gsf, ok = lhcb_electrons
+    _, pull_first = _location(sample, gsf, "first_hit", ok)[:2]
+    _, state, cov = gsf.locations["beamline"]
+    truth = sample.production_qop[sample.batch.hit_row[sample.batch.offsets[:-1]]]
+    pull_beamline = ((state[:, 4] - truth) / np.sqrt(cov[:, 4, 4]))[ok]
+    assert _covers(pull_first), np.sqrt(np.mean(pull_first**2))
+    assert _covers(pull_beamline), np.sqrt(np.mean(pull_beamline**2))
 
 
 def test_first_hit_distribution_narrows_on_lhcb_like(lhcb_electrons):
@@ -336,3 +370,34 @@ def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
     assert list(result.status) == [0, 0]
     np.testing.assert_allclose(result.node_state[:rows.size], result.node_state[rows.size:], rtol=1e-9)
+
+
+def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
+    """Issue 15: a VELO-only track's q/p is the momentum assumption of
+    `pkf.fit.seed.velo_qop_prior` and its error the assumption's width. The GSF's backward
+    filter started with a 10 % q/p prior that the smoothing counted: the first-hit q/p
+    error was 0.05× the assumption's (median; minimum bias ν = 7.6, truth pattern). Now
+    (backward prior 100× the seed's width for tracks that do not cross the magnet) it is
+    0.999×, the q/p within 0.03σ of the assumption, as the reference Kalman fit's."""
+    from pkf.fit.seed import TRACK_VELO
+    from pkf.fit.tracks import TrackBatch, seed_batch
+    from pkf.pipeline.simulate import SimulationConfig, simulate_batch
+    from pkf.pipeline.truth_pattern import truth_candidates
+
+    geometry = load_geometry("lhcb-like")
+    config = SimulationConfig(generator="minbias", pileup=7.6, events=8, seed=31)
+    hits, _, mc = simulate_batch(geometry, config, 0, config.events)
+    col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
+    layer = col(hits, "layer").astype(np.int64)
+    candidates = truth_candidates(col(hits, "event_id").astype(np.int64), layer, col(mc, "particle_id").astype(np.int64))
+    batch = TrackBatch.from_candidates(geometry, candidates, layer,
+                                       *(col(hits, c).astype(float) for c in ("u", "v", "sigma_u", "sigma_v")))
+    seeds, covs, _ = seed_batch(batch, geometry.reconstruction_field())
+    velo = batch.track_type == TRACK_VELO
+    result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, covs)
+    sel = velo & (result.status == 0)
+    assert sel.sum() >= 20
+    _, state, cov = result.locations["first_hit"]
+    width = np.sqrt(cov[sel, 4, 4] / covs[sel, 4, 4])
+    assert 0.95 <= np.median(width) <= 1.05, np.median(width)
+    assert np.all(np.abs(state[sel, 4] - seeds[sel, 4]) < 0.2 * np.sqrt(covs[sel, 4, 4]))

@@ -57,3 +57,25 @@ def test_gx2f_and_gsf_options_reach_their_fitters(tmp_path, capsys):
     capsys.readouterr()
     assert main(["reconstruct", str(data), "--out", str(tmp_path / "bad"), "--gsf-output", "median"]) == 2
     assert "--gsf-output" in capsys.readouterr().err
+
+
+def test_the_electron_hypothesis_reaches_the_kalman_fitters_only(tmp_path, capsys):
+    """`--hypothesis electron` (issue 15) is recorded in run.json and widens the Kalman
+    fitters' q/p covariances (Bethe–Heitler variance at every plane); the GX2F keeps the pion."""
+    data = tmp_path / "data"
+    assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun", "--events", "3",
+                 "--species", "electron", "--particles", "5", "--seed", "5"]) == 0
+    common = ["--pattern", "truth", "--fitter", "reference", "--fitter", "parametrized", "--fitter", "gx2f",
+              "--workers", "1"]
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "pion"), *common]) == 0
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "electron"), *common, "--hypothesis", "electron"]) == 0
+    config = json.loads((tmp_path / "electron" / "run.json").read_text())["config"]
+    assert config["kalman"]["hypothesis"] == "electron"
+    for fitter in ("reference", "parametrized"):
+        pion, electron = _states(tmp_path / "pion", fitter), _states(tmp_path / "electron", fitter)
+        assert pion.shape == electron.shape
+        assert np.median(electron[:, 3] / pion[:, 3]) > 2.0, fitter
+    np.testing.assert_array_equal(_states(tmp_path / "pion", "gx2f"), _states(tmp_path / "electron", "gx2f"))
+    capsys.readouterr()
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "bad"), "--hypothesis", "muon"]) == 2
+    assert "--hypothesis" in capsys.readouterr().err

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pkf.errors import InputError, NotBuiltYet
 from pkf.fit.gsf import fit_batch_gsf, gsf_extrapolator
 from pkf.fit.gx2f import fit_batch_gx2f
+from pkf.fit.hypothesis import with_hypothesis
 from pkf.fit.reference import reference_extrapolator
 from pkf.fit.tracks import fit_batch
 from pkf.geometry.detector import Geometry
@@ -36,6 +37,15 @@ class Fitter:
     qop_at_production: bool
     iterations: int = 1
     fit: Callable = fit_batch
+
+    def extrapolator(self, geometry: Geometry, params=None, hypothesis: str = "pion"):
+        """`make_extrapolator(geometry, params)` under the Kalman fitters' particle
+        `hypothesis` (`KalmanOptions.hypothesis`, `pkf.fit.hypothesis.with_hypothesis`); the
+        GX2F (pion) and the GSF (electron, with the full Bethe–Heitler mixture) keep their own."""
+        extrapolator = self.make_extrapolator(geometry, params)
+        if self.fit is fit_batch:
+            extrapolator = with_hypothesis(extrapolator, geometry, hypothesis)
+        return extrapolator
 
 
 #: Passes of the reference Kalman fitter by default. One pass linearises the RK4 transport

@@ -19,6 +19,8 @@ from scipy.stats import chi2 as chi2_distribution
 #: forward prediction and the backward filter, the Rauch–Tung–Striebel smoother (the same
 #: states, a test checks it), or none (forward filtered states: for timing studies).
 SMOOTHERS = ("weighted-mean", "rts", "forward-only")
+#: The Kalman fitters' particle hypotheses (docs/physics.md#particle-hypotheses; `pkf.fit.hypothesis`).
+HYPOTHESES = ("pion", "electron")
 #: What the GSF writes as a node's state (docs/physics.md; `pkf.fit.gsf`).
 GSF_OUTPUTS = ("core", "mode", "max-weight", "mean")
 
@@ -27,17 +29,22 @@ GSF_OUTPUTS = ("core", "mode", "max-weight", "mean")
 class KalmanOptions:
     """The Kalman fitters' options: `iterations`, the number of passes (the 2nd and later
     linearise around the previous optimal states; None: one pass, `pkf reconstruct` then
-    uses each fitter's own default, `pkf.fit.fitters.Fitter.iterations`), and `smoother`,
-    one of `SMOOTHERS`."""
+    uses each fitter's own default, `pkf.fit.fitters.Fitter.iterations`), `smoother`,
+    one of `SMOOTHERS`, and `hypothesis`, the particle assumed by the material effects, one
+    of `HYPOTHESES` (the electron adds the Bethe–Heitler loss and its variance to q/p,
+    `pkf.fit.hypothesis`; the extrapolator carries it: `pkf.fit.fitters.Fitter.extrapolator`)."""
 
     iterations: int | None = None
     smoother: str = "weighted-mean"
+    hypothesis: str = "pion"
 
     def __post_init__(self):
         if self.iterations is not None and self.iterations < 1:
             raise ValueError(f"iterations must be >= 1, not {self.iterations}")
         if self.smoother not in SMOOTHERS:
             raise ValueError(f"smoother must be one of {', '.join(SMOOTHERS)}, not {self.smoother!r}")
+        if self.hypothesis not in HYPOTHESES:
+            raise ValueError(f"hypothesis must be one of {', '.join(HYPOTHESES)}, not {self.hypothesis!r}")
 
 
 @dataclass(frozen=True)

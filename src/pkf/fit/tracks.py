@@ -18,6 +18,7 @@ import numpy as np
 from pkf.fit.beamline import beamline_states
 from pkf.fit.candidates import Candidates
 from pkf.fit.driver import max_nodes, track_loop
+from pkf.fit.hypothesis import ELECTRON_SEED_QOP_FRACTION, ElectronHypothesis, widen_seed_qop
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
@@ -242,6 +243,11 @@ def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.nd
     every node's predicted, filtered and (with a smoother) smoothed state in
     `result.track_states`."""
     kalman = options.kalman
+    if kalman.hypothesis != "pion" and not isinstance(extrapolator, ElectronHypothesis):
+        raise ValueError(f"hypothesis {kalman.hypothesis!r}: build the extrapolator with it "
+                         "(pkf.fit.hypothesis.with_hypothesis)")
+    if kalman.hypothesis == "electron":
+        seed_covs = widen_seed_qop(seeds, seed_covs, ELECTRON_SEED_QOP_FRACTION)
     no_smoother = kalman.smoother == "forward-only"
     result = FitResult.empty(batch, node_stage="filtered" if no_smoother else "smoothed")
     stages = node_stages(batch.z.size if track_states else 0)

@@ -296,6 +296,16 @@ def sample_bremsstrahlung_fraction(t):
 
 
 @nb.njit(cache=True)
+def bremsstrahlung_fraction_moments(t):
+    """Mean and variance of the Bethe–Heitler fraction z = E_f/E_i after t [X0]:
+    E[z] = e^{−t}, E[z²] = 3^{−t/ln 2}, so Var z = e^{−t·ln 3/ln 2} − e^{−2t}
+    (the moments LHCb's electron fit adds, StateElectronEnergyCorrectionTool). (1, 0) for t ≤ 0."""
+    if t <= 0.0:
+        return 1.0, 0.0
+    return math.exp(-t), math.exp(-t * math.log(3.0) / LN2) - math.exp(-2.0 * t)
+
+
+@nb.njit(cache=True)
 def apply_bremsstrahlung_to_qop(qop, mass, z):
     """q/p [1/MeV] after the total energy is scaled by z = E_f/E_i (±inf if E_f ≤ m)."""
     if qop == 0.0:

@@ -96,7 +96,7 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
         _CONTEXTS[key] = ReconstructionContext(
             geometry=geometry,
             pattern=config.pattern,
-            fitters_ext=[(f, f.make_extrapolator(geometry, config.params)) for f in fitters],
+            fitters_ext=[(f, f.extrapolator(geometry, config.params, config.kalman.hypothesis)) for f in fitters],
             # the forward extension of the triplet pattern uses the parametrized extrapolations
             pattern_ext=(load_parameters(geometry, config.params).extrapolator(geometry)
                          if config.pattern == "triplet" else None),
@@ -262,8 +262,11 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
             tables["track_states"].append(_track_states_table(fitter, batch, result, track_event, track_id,
                                                               hit_id))
         if has_mc:
+            # under the electron hypothesis the parametrized q/p is no longer the production one
+            # (it loses the expected radiation, pkf.fit.hypothesis): its truth is the local q/p
+            at_production = fitter.qop_at_production and ctx.fit_options[fitter.name].kalman.hypothesis == "pion"
             tables["pulls"].append(_pulls_table(fitter, batch, result, track_event, track_id, mc_particle,
-                                                hit_truth, production))
+                                                hit_truth, production, at_production))
     summary["timing"] = timing
     out = {}
     for name in RUN_TABLES:
@@ -364,11 +367,11 @@ def _track_states_table(fitter, batch, result, track_event, track_id, hit_id):
     return table_from_columns(TRACK_STATES, cols)
 
 
-def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_truth, production):
+def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_truth, production, at_production):
     """Residuals and pulls at each location for tracks matched to a particle.
 
     Truth at the first/last hit: the mc_hit state of that node's hit (q/p replaced by the
-    production q/p for fitters whose states carry it); at the beamline: the production
+    production q/p where the states carry it, `at_production`); at the beamline: the production
     vertex and momentum, straight-line extrapolated to the fitted z."""
     ok = (result.status == STATUS_OK) & (mc_particle > 0)
     pkey = particle_key(track_event, mc_particle)
@@ -393,10 +396,10 @@ def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_
             nodes = np.minimum(node_index[location], max(batch.z.size - 1, 0))
             truth_all = hit_truth[batch.hit_row[nodes]] if batch.z.size else np.zeros((0, 5))
             sel = ok & np.all(np.isfinite(truth_all), axis=1)
-            if fitter.qop_at_production:
+            if at_production:
                 sel &= has_particle
             truth = truth_all[sel]
-            if fitter.qop_at_production:
+            if at_production:
                 truth[:, 4] = production["qop"][pos[sel]]
         est = state[sel]
         sigma = np.sqrt(np.maximum(np.einsum("nii->ni", cov[sel]), 0.0))

@@ -7,7 +7,7 @@ import it from below, without importing each other.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 
 from pkf.errors import InputError
 from pkf.fit.fitters import Fitter, get_fitter
@@ -52,7 +52,7 @@ class ReconstructionConfig:
     def fit_options(self, fitter: Fitter) -> FitOptions:
         """The options `fitter` runs with: this config's, with the Kalman passes resolved
         to the fitter's own default (`Fitter.iterations`) when none are given."""
-        kalman = KalmanOptions(self.kalman.iterations or fitter.iterations, self.kalman.smoother)
+        kalman = replace(self.kalman, iterations=self.kalman.iterations or fitter.iterations)
         return FitOptions(self.outlier_chi2, self.max_outliers, kalman, self.gx2f, self.gsf)
 
     def to_dict(self) -> dict:
