@@ -18,7 +18,7 @@ Per iteration:
    y ← Fᵀ(I + Y·Q)⁻¹·(y − Y·a).
 3. Optimal state at every node = weighted mean of the forward prediction and the
    backward filtered state (paper §3): C = (P⁻¹ + Y)⁻¹, x = C·(P⁻¹·x_p + y), with
-   equilibrated Cholesky inverses. `SMOOTHER_RTS` computes the same states with the
+   equilibrated Cholesky inverses (`invert_spd_triangular`). `SMOOTHER_RTS` computes the same states with the
    Rauch–Tung–Striebel smoother instead; a test checks they agree.
 4. Track χ² = the sum of the forward filter's increments r_k|k−1ᵀ S_k⁻¹ r_k|k−1 (paper
    eq. 9), which for a linear Gaussian model equals the smoothed measurement residuals'
@@ -64,7 +64,7 @@ from pkf.physics.linalg import (
     add_matvec5,
     copy5,
     copy55,
-    invert_spd,
+    invert_spd_triangular,
     matmul55,
     matmul55_tn,
     matvec5,
@@ -290,13 +290,13 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
         if active[k]:
             add_node_information(info, info_vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], origin)
         # combination in information form: C = (P⁻¹ + Y)⁻¹, x = C·(P⁻¹·x_p + y)
-        if not invert_spd(pred_cov[k], inv, lu, spd_vec):
+        if not invert_spd_triangular(pred_cov[k], inv, lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
         add_matvec5(info_vec, inv, pred[k], vec5)
         for i in range(5):
             for j in range(5):
                 a[i, j] = inv[i, j] + info[i, j]
-        if not invert_spd(a, out_cov[k], lu, spd_vec):
+        if not invert_spd_triangular(a, out_cov[k], lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
         matvec5(out_cov[k], vec5, out_state[k])
         for i in range(5):
@@ -340,7 +340,7 @@ def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, ma
     copy55(filt_cov[n - 1], out_cov[n - 1])
     for k in range(n - 2, -1, -1):
         # A = P_k|k · F_k+1ᵀ · P_k+1|k⁻¹
-        if not invert_spd(pred_cov[k + 1], inv, lu, spd_vec):
+        if not invert_spd_triangular(pred_cov[k + 1], inv, lu, spd_vec):
             return STATUS_NOT_POSITIVE_DEFINITE
         for i in range(5):
             for j in range(5):

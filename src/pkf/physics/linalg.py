@@ -193,6 +193,55 @@ def invert_spd(a, out, work, vec):
     return True
 
 
+@nb.njit(cache=True, inline="always")
+def invert_spd_triangular(a, out, work, vec):
+    """out = a⁻¹ for a symmetric positive-definite 5×5 matrix, as `invert_spd` (same
+    equilibration and Cholesky factor a′ = L·Lᵀ, same failures) but through the inverse
+    of the factor (LAPACK's potri): L⁻¹ in place of L, then a′⁻¹ = L⁻ᵀ·L⁻¹ on one triangle.
+    20 divisions instead of 65 and about half the products; equal to `invert_spd` up to
+    rounding (not bitwise). work (5×5) and vec (≥ 5) are scratch; out is exactly symmetric.
+    """
+    n = 5
+    scale = vec[0:5]
+    for i in range(n):
+        if not a[i, i] > 0.0:
+            return False
+        scale[i] = 1.0 / math.sqrt(a[i, i])
+    for j in range(n):
+        s = a[j, j] * scale[j] * scale[j]
+        for k in range(j):
+            s -= work[j, k] * work[j, k]
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        work[j, j] = d
+        for i in range(j + 1, n):
+            t = a[i, j] * scale[i] * scale[j]
+            for k in range(j):
+                t -= work[i, k] * work[j, k]
+            work[i, j] = t / d
+    # L⁻¹ in place, last column first; within a column from the bottom, so that the
+    # entries of L still needed (rows above) are not yet overwritten
+    for j in range(n - 1, -1, -1):
+        inv_d = 1.0 / work[j, j]
+        for i in range(n - 1, j, -1):
+            t = 0.0
+            for k in range(j + 1, i + 1):
+                t += work[i, k] * work[k, j]
+            work[i, j] = -t * inv_d
+        work[j, j] = inv_d
+    # a⁻¹ = D·(L⁻ᵀ·L⁻¹)·D, one triangle
+    for i in range(n):
+        for j in range(i, n):
+            t = 0.0
+            for k in range(j, n):
+                t += work[k, i] * work[k, j]
+            v = t * scale[i] * scale[j]
+            out[i, j] = v
+            out[j, i] = v
+    return True
+
+
 @nb.njit(cache=True, **NO_REFCOUNT)
 def is_positive_definite_diag(a):
     """True if every diagonal element of a 5×5 matrix is positive and finite."""
