@@ -6,7 +6,8 @@ its first and last node (z_first < z_j ≤ z_last, only where it crosses the pla
 active area, as in the reference extrapolator). θ1, θ2 are the projected angles
 along u = (1, 0, −tx)/√(1+tx²) and v = d × u (d the direction; the convention of
 `pkf.physics.materials.deflect`); each has the Highland width θ0_j (docs/physics.md#material-effects) as a
-Gaussian prior. Minimised:
+Gaussian prior (evaluated at the local q/p; for VELO-only tracks at the momentum
+assumption's, `_width_shift`). Minimised:
 
     χ²(α, θ) = Σ_nodes Σ_meas (m − h·s_k(α, θ))²/σ² + Σ_planes |θ_j|²/θ0_j²
 
