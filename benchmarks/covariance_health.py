@@ -4,8 +4,8 @@ Reads the ``states`` table of one or more runs partition file by partition file 
 memory) and counts, per fitter × location:
 
 - rows, and rows whose state (x, y, tx, ty, qop) or covariance (c00 … c44) holds a NaN or ±inf;
-- covariances that are not positive definite: a Cholesky factorisation of the 5×5 matrix,
-  scaled to unit diagonal first (the correlation matrix: positions in mm and q/p in 1/MeV differ
+- covariances that are not positive definite: a negative smallest eigenvalue or a failing
+  Cholesky factorisation of the 5×5 matrix, scaled to unit diagonal first (the correlation matrix: positions in mm and q/p in 1/MeV differ
   by ~10⁸, so the factorisation is judged on the correlations), fails, or a diagonal element is ≤ 0;
 - the smallest eigenvalue of the correlation matrix (a near-singular covariance shows here first).
 
@@ -52,12 +52,15 @@ def check_block(table) -> dict[str, np.ndarray]:
     corr = cov * scale[:, :, None] * scale[:, None, :]
     corr[~positive_diag] = np.eye(5)
     min_eig = np.linalg.eigvalsh(corr)[:, 0]
-    pd = positive_diag.copy()
-    for k in np.flatnonzero(positive_diag):
-        try:
-            np.linalg.cholesky(corr[k])
-        except np.linalg.LinAlgError:
-            pd[k] = False
+    pd = positive_diag & (min_eig > 0.0)
+    try:  # the whole block at once; row by row only if some matrix fails
+        np.linalg.cholesky(corr[pd])
+    except np.linalg.LinAlgError:
+        for k in np.flatnonzero(pd):
+            try:
+                np.linalg.cholesky(corr[k])
+            except np.linalg.LinAlgError:
+                pd[k] = False
     min_eig[~positive_diag] = np.nan
     return {"finite": finite, "pd": pd, "min_eig": min_eig}
 
