@@ -18,9 +18,6 @@ kernel, so the option cannot leak memory. numba uses this option for its own
 non-allocating helpers (e.g. its mergesort). It is a
 private option (``_nrt``), so it is passed only if the installed numba knows it; otherwise
 the kernels compile as usual, slower and with the same results.
-
-**Currently switched off** (`NO_REFCOUNT` is empty, see below): the measured gains above are
-what it gives when on; with it off every kernel runs with reference counting.
 """
 
 from __future__ import annotations
