@@ -26,13 +26,5 @@ from numba.core import options as _numba_options
 
 __all__ = ["NO_REFCOUNT"]
 
-#: Switched off (2026-12-02): after reference counting was removed from the shared helpers too
-#: (field map, RK4 transport, ``search_sorted``), the test process aborted twice inside numba
-#: kernels of code that runs with reference counting (the simulation's transport, the forward
-#: search): SIGABRT without a message, once under pytest-xdist, once in one process, never in a
-#: fresh `pkf` process. Until the cause is found every kernel compiles with numba's default
-#: (reference counting on): the same results, slower (pattern ~×1.2, fits ~×1.6).
-NO_REFCOUNT_SUPPORTED: bool = hasattr(getattr(_numba_options, "DefaultOptions", None), "_nrt")
-
-#: keyword arguments of ``numba.njit`` for non-allocating kernels (empty: switched off, above)
-NO_REFCOUNT: dict = {}
+#: keyword arguments of ``numba.njit`` for non-allocating kernels (empty if unsupported)
+NO_REFCOUNT: dict = {"_nrt": False} if hasattr(getattr(_numba_options, "DefaultOptions", None), "_nrt") else {}
