@@ -62,7 +62,7 @@ def test_triangular_inverse_equals_the_lu_path_and_numpy(rng):
     from pkf.physics.linalg import invert_spd, invert_spd_triangular
 
     scales = np.array([0.05, 0.05, 1e-4, 1e-4, 1e-7])
-    work, vec = np.zeros((5, 5)), np.zeros(5)
+    work, vec = np.zeros((5, 5)), np.zeros(10)  # invert_spd needs vec of 10
     for _ in range(200):
         a = _spd(rng, scales)
         fast, slow = np.zeros((5, 5)), np.zeros((5, 5))
