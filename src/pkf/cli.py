@@ -236,6 +236,10 @@ def main(argv: list[str] | None = None) -> int:
         click.echo(_interrupted_message(args), err=True)
         return 130
     except Exception as exc:  # an internal error: one line, the traceback on request
+        if isinstance(exc, SystemError) and isinstance(exc.__cause__, KeyboardInterrupt):
+            # Ctrl-C that landed while a compiled kernel returned ("returned a result with an exception set")
+            click.echo(_interrupted_message(args), err=True)
+            return 130
         if os.environ.get("PKF_DEBUG"):
             traceback.print_exc()
         message = str(exc).splitlines()[0] if str(exc) else ""
