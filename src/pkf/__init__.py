@@ -5,6 +5,7 @@ Units everywhere: mm, MeV (c = 1), tesla, rad (docs/formats.md#conventions).
 
 import hashlib
 import os
+import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -33,9 +34,12 @@ def _configure_numba_cache() -> None:
         digest.update(str(path.relative_to(root)).encode())
         digest.update(path.read_bytes())
     base = Path(os.environ.get("PKF_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pkf")
-    import numba
-
-    numba.config.CACHE_DIR = str(base / "numba" / digest.hexdigest()[:16])
+    cache_dir = str(base / "numba" / digest.hexdigest()[:16])
+    numba = sys.modules.get("numba")
+    if numba is None:  # numba reads it when imported; not importing it here keeps `pkf --help` and Ctrl-C at start-up quick
+        os.environ["NUMBA_CACHE_DIR"] = cache_dir
+    else:
+        numba.config.CACHE_DIR = cache_dir
 
 
 _configure_numba_cache()

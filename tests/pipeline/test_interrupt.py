@@ -59,3 +59,15 @@ def test_ctrl_c_stops_reconstruct_within_seconds_and_leaves_a_resumable_run(tmp_
     done = re.search(r"resuming: (\d) of 4 partitions already done", resumed.stderr)
     assert done and 1 <= int(done.group(1)) <= 3, resumed.stderr
     assert (out / "run.json").is_file()
+
+
+def test_ctrl_c_while_pkf_starts_exits_130_without_a_traceback(tmp_path):
+    """Importing numba, scipy and the kernels takes ~1 s: Ctrl-C then used to print a traceback."""
+    command = [sys.executable, "-m", "pkf", "simulate", "--out", str(tmp_path / "d"), "--events", "1"]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), text=True)
+    time.sleep(0.25)  # python is up, pkf.cli is being imported
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err == "pkf: interrupted; nothing was written (rerun the command)\n"
+    assert not (tmp_path / "d").exists()
