@@ -25,6 +25,7 @@ PACKAGE_ROOT = Path(pkf.__file__).resolve().parent
 #: floor of each top-level part of pkf; higher numbers are higher floors (DESIGN §14)
 FLOORS = {
     "cli": 9,
+    "__main__": 10,  # the console script (`pkf`, `python -m pkf`): only imports pkf.cli
     "pipeline": 8,
     "report": 7,
     "seeding": 6,

@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 import pkf
-from pkf.errors import InputError, NotBuiltYet
+from pkf.errors import CtrlC, InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
 from pkf.fit.options import GSF_OUTPUTS, HYPOTHESES, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
@@ -208,24 +208,6 @@ def _interrupted_message(args: list[str]) -> str:
     return "pkf: interrupted; nothing was written (rerun the command)"
 
 
-class _CtrlC:
-    """Remembers whether SIGINT arrived while the command ran.
-
-    Ctrl-C does not always reach ``main`` as a KeyboardInterrupt: when it lands while a compiled
-    kernel calls back into Python, each compiled frame wraps it in a SystemError ("returned a
-    result with an exception set", four deep under ``_velo_search_kernel``); during compilation
-    llvmlite ignores it in a ctypes callback and numba then fails with "no compiled object yet".
-    Any error after a SIGINT is the interruption, not an internal error.
-    """
-
-    seen = False
-
-    @classmethod
-    def handler(cls, signum, frame):
-        cls.seen = True
-        signal.default_int_handler(signum, frame)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `pkf` console script; returns the exit code.
 
@@ -234,9 +216,9 @@ def main(argv: list[str] | None = None) -> int:
     KeyboardInterrupt: exit 130 with what to do next.
     """
     args = list(sys.argv[1:] if argv is None else argv)
-    _CtrlC.seen = False
+    CtrlC.seen = False  # Ctrl-C may also reach us wrapped in other errors, or swallowed (CtrlC)
     if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-        signal.signal(signal.SIGINT, _CtrlC.handler)
+        signal.signal(signal.SIGINT, CtrlC.handler)
     try:
         with cli.make_context("pkf", args) as ctx:
             cli.invoke(ctx)
@@ -259,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         click.echo(_interrupted_message(args), err=True)
         return 130
     except Exception as exc:  # an internal error: one line, the traceback on request
-        if _CtrlC.seen:
+        if CtrlC.seen:  # e.g. numba's SystemError "returned a result with an exception set"
             click.echo(_interrupted_message(args), err=True)
             return 130
         if os.environ.get("PKF_DEBUG"):

@@ -13,3 +13,26 @@ class NotBuiltYet(Exception):
 
     The CLI says so on stderr and exits with code 1; pkf never makes numbers up.
     """
+
+
+class CtrlC:
+    """Whether SIGINT reached the command line's handler (`pkf.cli.main` installs it).
+
+    Ctrl-C normally arrives as a KeyboardInterrupt, but Python swallows one raised inside a
+    finalizer or a ctypes callback (numba caching a kernel: "Exception ignored … KeyboardInterrupt")
+    and the run would go on to the end. Long loops call `CtrlC.check()` between groups of work.
+    """
+
+    seen = False
+
+    @classmethod
+    def handler(cls, signum, frame):
+        """SIGINT handler: remember, then raise KeyboardInterrupt as Python's default does."""
+        cls.seen = True
+        raise KeyboardInterrupt
+
+    @classmethod
+    def check(cls) -> None:
+        """Raise KeyboardInterrupt if Ctrl-C was pressed since the command started."""
+        if cls.seen:
+            raise KeyboardInterrupt

@@ -17,6 +17,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from pkf.errors import CtrlC
+
 __all__ = ["PartitionTask", "run_partition", "execute", "default_workers"]
 
 
@@ -179,6 +181,7 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
         summary = add_summaries(summary, group_summary)
         if progress is not None:
             progress(group_summary["events"])
+        CtrlC.check()
     return {name: pa.concat_tables(t) for name, t in tables.items()}, summary
 
 
