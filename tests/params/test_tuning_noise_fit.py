@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from pkf.cli import main
+from pkf.params.gauss import gaussian_core
 from pkf.params.parameter_set import slot_structure
 from pkf.params.tuning import _apply_many, fit_extrapolation, fit_noise, step_groups
 from pkf.params.ut_to_scifi import META_SIZE
@@ -28,7 +29,8 @@ def gun_pairs(tmp_path_factory):
     return geometry, pairs, groups
 
 
-@pytest.mark.parametrize("step", ["slot 52", "slot 62", "slot 65"])  # UT, SciFi, SciFi: invalid before
+# UT, SciFi, SciFi: invalid before; VELO: valid but p̃0 = 1.52 at ρ = 0.67 (a flat valley p̃0²(1 − ρ²))
+@pytest.mark.parametrize("step", ["slot 52", "slot 62", "slot 65", "velo"])
 def test_noise_fit_of_a_layer_step_is_valid_and_physical(gun_pairs, step):
     geometry, pairs, groups = gun_pairs
     group = groups[step]
@@ -44,3 +46,10 @@ def test_noise_fit_of_a_layer_step_is_valid_and_physical(gun_pairs, step):
     assert report.points > 1800
     assert report.valid
     assert noise[0] == pytest.approx(1.12, rel=0.1)  # Highland, as the shipped set
+    # the slope noise the filter adds, √(p̃0²·(q/p)²·path + p̃4²) (ρ plays no part without position
+    # noise), is the width of the slope residuals: their pulls have unit width
+    n2 = 1 + x1[:, 2] ** 2 + x1[:, 3] ** 2
+    for slope in (2, 3):
+        path = n2**1.5 * (1 + x1[:, slope] ** 2)
+        sigma = np.sqrt(noise[0] ** 2 * x1[:, 4] ** 2 * path + noise[4] ** 2)
+        assert gaussian_core(d[:, slope] / sigma).sigma == pytest.approx(1.0, abs=0.05)
