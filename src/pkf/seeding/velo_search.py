@@ -379,7 +379,7 @@ def _window(v0x, v0y, v1x, v1y, rho, ms, tx, ty, nsig):
 
 #: φ bins per module and event for the candidate lookup (hits are sorted by φ inside
 #: a module, so a bin range is an index range)
-N_PHI_BINS = 64
+N_PHI_BINS = 256
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
@@ -577,14 +577,53 @@ def _add_triplet(th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd, chi2_cut,
     return nt + 1
 
 
+#: bound on |fast_atan2 − math.atan2| [rad] by which the φ windows are widened (the
+#: polynomial's error is ≤ 4.1e-8 rad; tests/seeding/test_velo_phi_window.py measures it)
+FAST_ATAN2_ERROR = 1e-6
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def fast_atan2(y, x):
+    """atan2(y, x) [rad] within `FAST_ATAN2_ERROR`: an odd degree-15 polynomial (least
+    squares on [0, 1]) in min(|x|, |y|)/max(|x|, |y|), unfolded to the octant; cheaper
+    than libm's atan2. Only for window centres, never for a stored φ."""
+    ax = abs(x)
+    ay = abs(y)
+    big = max(ax, ay)
+    if big == 0.0:
+        return 0.0
+    a = min(ax, ay) / big
+    s = a * a
+    r = a * (0.9999994368089473 + s * (-0.3333010651496397 + s * (0.19948506907809624 + s * (
+        -0.13915790947967252 + s * (0.09656225487513842 + s * (-0.05606272859318783 + s * (
+            0.02194628436349235 - 0.004073214991437468 * s)))))))
+    if ay > ax:
+        r = 0.5 * math.pi - r
+    if x < 0.0:
+        r = math.pi - r
+    return -r if y < 0.0 else r
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _angular_half_width(w, r):
+    """An upper bound [rad] of asin(w/r), the angle under which a disc of radius w [mm] at
+    distance r [mm] from the origin is seen: tan(asin(w/r)) = w/√(r² − w²) (≥ the angle;
+    one square root instead of an arcsine), at most π/2 (≥ any arcsine: a window below
+    π, as with the arcsine); 4 (> π: the whole module) if w ≥ r."""
+    if w >= r:
+        return 4.0
+    return min(w / math.sqrt((r - w) * (r + w)), 0.5 * math.pi)
+
+
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _window_ranges(bin_off, k, xp, yp, wx, wy):
-    """Index ranges (`_bin_ranges`) of the hits of module k in the φ window that holds the
-    box ±(wx, wy) [mm] around (xp, yp)."""
+    """Index ranges (`_bin_ranges`) of the hits of module k in a φ window that holds the
+    box ±(wx, wy) [mm] around (xp, yp) (a superset of the box: every hit of the box is in
+    the ranges, in φ order, whatever the window's exact width)."""
     w = 1.4143 * max(wx, wy)
     rp = math.sqrt(xp * xp + yp * yp)
-    wphi = 1.0001 * math.asin(w / rp) if w < rp else 4.0
-    return _bin_ranges(bin_off, k, math.atan2(yp, xp), wphi)
+    wphi = 1.0001 * _angular_half_width(w, rp) + FAST_ATAN2_ERROR
+    return _bin_ranges(bin_off, k, fast_atan2(yp, xp), wphi)
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -973,7 +1012,7 @@ def _search_triplets(e, side_only, j_start, b_start, nt, ev, cfg, store, dbl_a, 
                 z0max = min(z_hi, za_layer)
                 r_lo = rb * (za_layer - z0max) / (zb_layer - z0max) - tol
                 r_min = max(r_lo, lt[i, _L_HOLE_R])
-                wphi = 1.0001 * math.asin(tol / r_min) if tol < r_min else 4.0
+                wphi = 1.0001 * _angular_half_width(tol, r_min)
                 a0, a1, c0, c1 = _bin_ranges(bin_off, i, phib, wphi)
                 for rng in range(2):
                     s0 = a0 if rng == 0 else c0
