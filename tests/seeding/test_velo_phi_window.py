@@ -1,4 +1,6 @@
-"""The φ-window lookup of the VELO search (pkf.seeding.velo_search): the cheap window
+"""The φ-window lookup of the VELO search (pkf.seeding.velo_search) and the φ sort of its
+hits. The φ sort (`_stable_sort_by_key`, in place, one scratch buffer) must give the
+permutation of numpy's stable argsort, ties included. The cheap window
 (`fast_atan2` for its centre, the tangent bound `_angular_half_width` for its width) must
 hand the search every hit of the box it asks for, in the order the search has always
 visited them (φ order around the box), whatever the bin count; the found tracks then
@@ -17,6 +19,7 @@ from pkf.seeding.velo_search import (
     N_PHI_BINS,
     _angular_half_width,
     _fill_bins,
+    _stable_sort_by_key,
     _window_ranges,
     fast_atan2,
 )
@@ -93,3 +96,21 @@ def test_window_returns_every_box_hit_in_phi_order_around_the_box(seed):
         assert _visited_box_hits(hit, bin_off, xp, yp, wx, wy) == expected
         checked += len(expected)
     assert checked > 3000  # the boxes did hold hits
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 15, 16, 17, 33, 100, 1000])
+def test_phi_sort_is_numpys_stable_argsort(n):
+    """Keys with many ties (also −0.0 against 0.0, equal for a comparison) sorted in a
+    slice of a larger array: the same permutation as np.argsort(kind="stable"), the
+    elements outside the slice untouched."""
+    rng = np.random.default_rng(n)
+    key = rng.choice(np.array([-0.0, 0.0, 1.5, -2.0, 3.0, math.pi, -math.pi]), n + 10)
+    key[5:5 + n] = np.where(rng.random(n) < 0.5, key[5:5 + n], rng.uniform(-math.pi, math.pi, n))
+    val = np.arange(n + 10, dtype=np.int64) * 7
+    want_val = val.copy()
+    want_val[5:5 + n] = val[5:5 + n][np.argsort(key[5:5 + n], kind="stable")]
+    want_key = key.copy()
+    want_key[5:5 + n] = np.sort(key[5:5 + n], kind="stable")
+    _stable_sort_by_key(key, val, 5, 5 + n, np.empty(n + 10), np.empty(n + 10, dtype=np.int64))
+    assert np.array_equal(val, want_val)
+    assert np.array_equal(key, want_key) and np.array_equal(np.signbit(key), np.signbit(want_key))

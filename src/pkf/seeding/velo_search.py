@@ -865,6 +865,59 @@ _N_H = 7
 _N_OUT = 7
 
 
+#: runs of this many elements are sorted by insertion before merging
+_INSERTION_RUN = 16
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _stable_sort_by_key(key, val, lo, hi, key_tmp, val_tmp):
+    """Sort key[lo:hi] ascending, carrying val[lo:hi] along, stably (equal keys keep their
+    order: the permutation of np.argsort(kind="mergesort")), in place: insertion sort of
+    runs of `_INSERTION_RUN`, then bottom-up merges through key_tmp/val_tmp (scratch of at
+    least hi elements)."""
+    for start in range(lo, hi, _INSERTION_RUN):
+        stop = min(start + _INSERTION_RUN, hi)
+        for i in range(start + 1, stop):
+            kk = key[i]
+            vv = val[i]
+            j = i
+            while j > start and key[j - 1] > kk:
+                key[j] = key[j - 1]
+                val[j] = val[j - 1]
+                j -= 1
+            key[j] = kk
+            val[j] = vv
+    width = _INSERTION_RUN
+    while width < hi - lo:
+        for left in range(lo, hi, 2 * width):
+            mid = min(left + width, hi)
+            right = min(left + 2 * width, hi)
+            if mid >= right or not key[mid] < key[mid - 1]:
+                continue  # already in order
+            for i in range(left, mid):
+                key_tmp[i] = key[i]
+                val_tmp[i] = val[i]
+            i = left
+            j = mid
+            out = left
+            while i < mid and j < right:
+                if key[j] < key_tmp[i]:  # strictly less: ties take the left run first
+                    key[out] = key[j]
+                    val[out] = val[j]
+                    j += 1
+                else:
+                    key[out] = key_tmp[i]
+                    val[out] = val_tmp[i]
+                    i += 1
+                out += 1
+            while i < mid:
+                key[out] = key_tmp[i]
+                val[out] = val_tmp[i]
+                i += 1
+                out += 1
+        width *= 2
+
+
 @nb.njit(cache=True)
 def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
     """Select the VELO hits, sort them by (event, module, φ) with a counting sort and
@@ -921,14 +974,12 @@ def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
         hlay[p] = k % nl
         phi_tmp[p] = math.atan2(y[i], x[i])
     # φ order inside each (event, module) bucket: a stable merge sort (at ν = 7.6 a module
-    # holds ~100 hits of an event, too many for the insertion sort this was)
+    # holds ~100 hits of an event, too many for an insertion sort alone) in one scratch
+    # buffer, not an argsort and two gathers (three allocations) per bucket
+    scratch_phi = np.empty(m)
+    scratch_rows = np.empty(m, dtype=np.int64)
     for k in range(n_events * nl):
-        lo = lay_off[k]
-        hi = lay_off[k + 1]
-        if hi - lo > 1:
-            by_phi = np.argsort(phi_tmp[lo:hi], kind="mergesort")
-            rows[lo:hi] = rows[lo:hi][by_phi]
-            phi_tmp[lo:hi] = phi_tmp[lo:hi][by_phi]
+        _stable_sort_by_key(phi_tmp, rows, lay_off[k], lay_off[k + 1], scratch_phi, scratch_rows)
     hit = np.empty((m, _N_H))
     for p in range(m):
         i = rows[p]
