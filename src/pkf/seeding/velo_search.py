@@ -26,7 +26,8 @@ Algorithm (per event)
    mismatch: beam spot, scattering upstream, resolution, displaced decay vertices),
    tol = ``doublet_tolerance`` + ``doublet_tolerance_slope``·r_b (0.3 mm + 0.005·r_b),
    and r_b·(z_a − z0max)/(z_b − z0max) − tol ≤ r_a ≤ r_b·(z_a + z_luminous)/(z_b +
-   z_luminous) + tol, z0max = min(z_luminous, z_a); the φ window is asin(tol/r_min).
+   z_luminous) + tol, z0max = min(z_luminous, z_a); the φ window is tan(asin(tol/r_min))
+   (≥ asin(tol/r_min): a wider window only adds hits that fail the cuts).
 
 4. **Third hit and triplet fit.** The line a → b is extrapolated to the following
    modules of the half; hits within ``window_sigmas`` standard deviations (hit errors
