@@ -5,13 +5,15 @@ of `pkf reconstruct --pattern triplet` (`pkf.pipeline.triplet_pattern.triplet_ca
 VELO triplet search, merging and arbitration, then the forward extension through UT and
 SciFi) on one core after JIT warm-up, timing the VELO search and the forward extension
 separately (best of --repeat; pile-up values interleaved, so that a change of the
-machine's load affects them alike). The quality on the same events uses the matching of
+machine's load affects them alike). With --split-forward the forward extension is also
+timed without its second pass (``no_ut_fallback=False``: the UT starts only), so that
+the second pass's full-range scans are the difference (that run's tracks are not used). The quality on the same events uses the matching of
 `pkf reconstruct` (DESIGN §10): long-track efficiency for p > 5 GeV and 2–5 GeV, long
 ghost and clone rates, VELO-track efficiency, ghost and clone rate (VELO tracks matched on
 their VELO hits). Prints a table, the time(7.6)/time(1) ratio against the hit ratio, and
 writes JSON with --json.
 
-    python benchmarks/pattern_recognition.py [--events 200] [--repeat 3] [--json out.json]
+    python benchmarks/pattern_recognition.py [--events 200] [--repeat 3] [--split-forward] [--json out.json]
 """
 
 from __future__ import annotations
@@ -50,16 +52,21 @@ def _sample(geometry, events: int, pileup: float, seed: int) -> dict:
     return {"h": hits, "p": particles, "m": mc_hits}
 
 
-def _timed_pattern(geometry, ext, h) -> tuple[tuple, float, float]:
-    """The pattern step of `triplet_candidates`, split into its two stages: CPU seconds."""
+def _timed_pattern(geometry, ext, h, split_forward=False) -> tuple[float, float, float]:
+    """The pattern step of `triplet_candidates`, split into its two stages, and with
+    split_forward the forward extension's first pass alone (else NaN): CPU seconds."""
     c0 = time.process_time()
     velo = find_velo_tracks(h["event_id"], h["layer"], h["u"], h["v"], h["z"],
                             np.column_stack([h["sigma_u"], h["sigma_v"]]), geometry)
     c1 = time.process_time()
-    extend_velo_tracks(velo.event_id, np.column_stack([velo.x, velo.y, velo.tx, velo.ty]), velo.z,
-                       h["event_id"], h["layer"], h["u"], h["sigma_u"], geometry, ext)
+    forward_args = (velo.event_id, np.column_stack([velo.x, velo.y, velo.tx, velo.ty]), velo.z,
+                    h["event_id"], h["layer"], h["u"], h["sigma_u"], geometry, ext)
+    extend_velo_tracks(*forward_args)
     c2 = time.process_time()
-    return c1 - c0, c2 - c1
+    if not split_forward:
+        return c1 - c0, c2 - c1, math.nan
+    extend_velo_tracks(*forward_args, no_ut_fallback=False)
+    return c1 - c0, c2 - c1, time.process_time() - c2
 
 
 def _quality(geometry, ext, sample) -> dict:
@@ -94,20 +101,24 @@ def main() -> None:
     parser.add_argument("--events", type=int, default=200, help="events per pile-up value")
     parser.add_argument("--repeat", type=int, default=3, help="timed runs (best is kept)")
     parser.add_argument("--seed", type=int, default=2024)
+    parser.add_argument("--split-forward", action="store_true",
+                        help="also time the forward extension without its second pass (full-range scans)")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     args = parser.parse_args()
 
     geometry = load_geometry("lhcb-like")
     ext = shipped_parameters(geometry).extrapolator(geometry)
     samples = {nu: _sample(geometry, args.events, nu, args.seed) for nu in PILEUPS}
-    _timed_pattern(geometry, ext, samples[PILEUPS[0]]["h"])  # JIT warm-up (compile or load the cache)
+    _timed_pattern(geometry, ext, samples[PILEUPS[0]]["h"], args.split_forward)  # JIT warm-up
     velo_s = {nu: [] for nu in PILEUPS}
     fwd_s = {nu: [] for nu in PILEUPS}
+    first_s = {nu: [] for nu in PILEUPS}
     for _ in range(args.repeat):
         for nu in PILEUPS:
-            tv, tf = _timed_pattern(geometry, ext, samples[nu]["h"])
+            tv, tf, t1 = _timed_pattern(geometry, ext, samples[nu]["h"], args.split_forward)
             velo_s[nu].append(tv)
             fwd_s[nu].append(tf)
+            first_s[nu].append(t1)
 
     rows = []
     for nu in PILEUPS:
@@ -119,6 +130,8 @@ def main() -> None:
             "cpu_ms_per_event": 1e3 * min(total) / args.events,
             "velo_cpu_ms_per_event": 1e3 * min(velo_s[nu]) / args.events,
             "forward_cpu_ms_per_event": 1e3 * min(fwd_s[nu]) / args.events,
+            "forward_first_pass_cpu_ms_per_event": (1e3 * min(first_s[nu]) / args.events
+                                                    if args.split_forward else None),
             "long": q["long"], "velo": q["velo"],
         })
 
@@ -133,11 +146,19 @@ def main() -> None:
               f"{100 * lp['p_gt_5GeV']['efficiency']:6.2f}% {100 * lp['p_2_5GeV']['efficiency']:6.2f}% "
               f"{100 * r['long']['ghost_rate']:5.2f}% {100 * r['long']['clone_rate']:5.2f}% "
               f"{100 * r['velo']['efficiency']:7.2f}% {100 * r['velo']['ghost_rate']:6.2f}%")
+    if args.split_forward:
+        print("forward extension, ms/event: first pass (UT starts) + second pass (full-range scans)")
+        for r in rows:
+            first = r["forward_first_pass_cpu_ms_per_event"]
+            print(f"{r['pileup']:4.1f} {first:7.2f} + {r['forward_cpu_ms_per_event'] - first:6.2f}")
     lo, hi = rows[0], rows[-1]
     t_ratio = hi["cpu_ms_per_event"] / lo["cpu_ms_per_event"]
     h_ratio = hi["hits_per_event"] / lo["hits_per_event"]
     print(f"time(7.6)/time(1) = {t_ratio:.2f}   hits(7.6)/hits(1) = {h_ratio:.2f}   "
           f"time ~ hits^{math.log(t_ratio) / math.log(h_ratio):.2f}   (CPU time, one core)")
+    for stage in ("velo", "forward"):
+        ratio = hi[f"{stage}_cpu_ms_per_event"] / lo[f"{stage}_cpu_ms_per_event"]
+        print(f"  {stage}: time(7.6)/time(1) = {ratio:.2f}   time ~ hits^{math.log(ratio) / math.log(h_ratio):.2f}")
     if args.json:
         out = {"benchmark": "pattern_recognition",
                "description": "triplet_candidates (VELO search + forward extension) on lhcb-like minbias, "

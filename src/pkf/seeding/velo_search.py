@@ -26,7 +26,8 @@ Algorithm (per event)
    mismatch: beam spot, scattering upstream, resolution, displaced decay vertices),
    tol = ``doublet_tolerance`` + ``doublet_tolerance_slope``·r_b (0.3 mm + 0.005·r_b),
    and r_b·(z_a − z0max)/(z_b − z0max) − tol ≤ r_a ≤ r_b·(z_a + z_luminous)/(z_b +
-   z_luminous) + tol, z0max = min(z_luminous, z_a); the φ window is asin(tol/r_min).
+   z_luminous) + tol, z0max = min(z_luminous, z_a); the φ window is tan(asin(tol/r_min))
+   (≥ asin(tol/r_min): a wider window only adds hits that fail the cuts).
 
 4. **Third hit and triplet fit.** The line a → b is extrapolated to the following
    modules of the half; hits within ``window_sigmas`` standard deviations (hit errors
@@ -379,7 +380,7 @@ def _window(v0x, v0y, v1x, v1y, rho, ms, tx, ty, nsig):
 
 #: φ bins per module and event for the candidate lookup (hits are sorted by φ inside
 #: a module, so a bin range is an index range)
-N_PHI_BINS = 64
+N_PHI_BINS = 256
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
@@ -577,14 +578,53 @@ def _add_triplet(th, tf, ti, nt, head_first, a, b, c, c2, kap, vk, nd, chi2_cut,
     return nt + 1
 
 
+#: bound on |fast_atan2 − math.atan2| [rad] by which the φ windows are widened (the
+#: polynomial's error is ≤ 4.1e-8 rad; tests/seeding/test_velo_phi_window.py measures it)
+FAST_ATAN2_ERROR = 1e-6
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def fast_atan2(y, x):
+    """atan2(y, x) [rad] within `FAST_ATAN2_ERROR`: an odd degree-15 polynomial (least
+    squares on [0, 1]) in min(|x|, |y|)/max(|x|, |y|), unfolded to the octant; cheaper
+    than libm's atan2. Only for window centres, never for a stored φ."""
+    ax = abs(x)
+    ay = abs(y)
+    big = max(ax, ay)
+    if big == 0.0:
+        return 0.0
+    a = min(ax, ay) / big
+    s = a * a
+    r = a * (0.9999994368089473 + s * (-0.3333010651496397 + s * (0.19948506907809624 + s * (
+        -0.13915790947967252 + s * (0.09656225487513842 + s * (-0.05606272859318783 + s * (
+            0.02194628436349235 - 0.004073214991437468 * s)))))))
+    if ay > ax:
+        r = 0.5 * math.pi - r
+    if x < 0.0:
+        r = math.pi - r
+    return -r if y < 0.0 else r
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _angular_half_width(w, r):
+    """An upper bound [rad] of asin(w/r), the angle under which a disc of radius w [mm] at
+    distance r [mm] from the origin is seen: tan(asin(w/r)) = w/√(r² − w²) (≥ the angle;
+    one square root instead of an arcsine), at most π/2 (≥ any arcsine: a window below
+    π, as with the arcsine); 4 (> π: the whole module) if w ≥ r."""
+    if w >= r:
+        return 4.0
+    return min(w / math.sqrt((r - w) * (r + w)), 0.5 * math.pi)
+
+
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _window_ranges(bin_off, k, xp, yp, wx, wy):
-    """Index ranges (`_bin_ranges`) of the hits of module k in the φ window that holds the
-    box ±(wx, wy) [mm] around (xp, yp)."""
+    """Index ranges (`_bin_ranges`) of the hits of module k in a φ window that holds the
+    box ±(wx, wy) [mm] around (xp, yp) (a superset of the box: every hit of the box is in
+    the ranges, in φ order, whatever the window's exact width)."""
     w = 1.4143 * max(wx, wy)
     rp = math.sqrt(xp * xp + yp * yp)
-    wphi = 1.0001 * math.asin(w / rp) if w < rp else 4.0
-    return _bin_ranges(bin_off, k, math.atan2(yp, xp), wphi)
+    wphi = 1.0001 * _angular_half_width(w, rp) + FAST_ATAN2_ERROR
+    return _bin_ranges(bin_off, k, fast_atan2(yp, xp), wphi)
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -826,6 +866,59 @@ _N_H = 7
 _N_OUT = 7
 
 
+#: runs of this many elements are sorted by insertion before merging
+_INSERTION_RUN = 16
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _stable_sort_by_key(key, val, lo, hi, key_tmp, val_tmp):
+    """Sort key[lo:hi] ascending, carrying val[lo:hi] along, stably (equal keys keep their
+    order: the permutation of np.argsort(kind="mergesort")), in place: insertion sort of
+    runs of `_INSERTION_RUN`, then bottom-up merges through key_tmp/val_tmp (scratch of at
+    least hi elements)."""
+    for start in range(lo, hi, _INSERTION_RUN):
+        stop = min(start + _INSERTION_RUN, hi)
+        for i in range(start + 1, stop):
+            kk = key[i]
+            vv = val[i]
+            j = i
+            while j > start and key[j - 1] > kk:
+                key[j] = key[j - 1]
+                val[j] = val[j - 1]
+                j -= 1
+            key[j] = kk
+            val[j] = vv
+    width = _INSERTION_RUN
+    while width < hi - lo:
+        for left in range(lo, hi, 2 * width):
+            mid = min(left + width, hi)
+            right = min(left + 2 * width, hi)
+            if mid >= right or not key[mid] < key[mid - 1]:
+                continue  # already in order
+            for i in range(left, mid):
+                key_tmp[i] = key[i]
+                val_tmp[i] = val[i]
+            i = left
+            j = mid
+            out = left
+            while i < mid and j < right:
+                if key[j] < key_tmp[i]:  # strictly less: ties take the left run first
+                    key[out] = key[j]
+                    val[out] = val[j]
+                    j += 1
+                else:
+                    key[out] = key_tmp[i]
+                    val[out] = val_tmp[i]
+                    i += 1
+                out += 1
+            while i < mid:
+                key[out] = key_tmp[i]
+                val[out] = val_tmp[i]
+                i += 1
+                out += 1
+        width *= 2
+
+
 @nb.njit(cache=True)
 def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
     """Select the VELO hits, sort them by (event, module, φ) with a counting sort and
@@ -882,14 +975,12 @@ def _prepare_hits(event_id, layer, x, y, z, sx, sy, lmap, nl):
         hlay[p] = k % nl
         phi_tmp[p] = math.atan2(y[i], x[i])
     # φ order inside each (event, module) bucket: a stable merge sort (at ν = 7.6 a module
-    # holds ~100 hits of an event, too many for the insertion sort this was)
+    # holds ~100 hits of an event, too many for an insertion sort alone) in one scratch
+    # buffer, not an argsort and two gathers (three allocations) per bucket
+    scratch_phi = np.empty(m)
+    scratch_rows = np.empty(m, dtype=np.int64)
     for k in range(n_events * nl):
-        lo = lay_off[k]
-        hi = lay_off[k + 1]
-        if hi - lo > 1:
-            by_phi = np.argsort(phi_tmp[lo:hi], kind="mergesort")
-            rows[lo:hi] = rows[lo:hi][by_phi]
-            phi_tmp[lo:hi] = phi_tmp[lo:hi][by_phi]
+        _stable_sort_by_key(phi_tmp, rows, lay_off[k], lay_off[k + 1], scratch_phi, scratch_rows)
     hit = np.empty((m, _N_H))
     for p in range(m):
         i = rows[p]
@@ -973,7 +1064,7 @@ def _search_triplets(e, side_only, j_start, b_start, nt, ev, cfg, store, dbl_a, 
                 z0max = min(z_hi, za_layer)
                 r_lo = rb * (za_layer - z0max) / (zb_layer - z0max) - tol
                 r_min = max(r_lo, lt[i, _L_HOLE_R])
-                wphi = 1.0001 * math.asin(tol / r_min) if tol < r_min else 4.0
+                wphi = 1.0001 * _angular_half_width(tol, r_min)
                 a0, a1, c0, c1 = _bin_ranges(bin_off, i, phib, wphi)
                 for rng in range(2):
                     s0 = a0 if rng == 0 else c0
