@@ -19,6 +19,13 @@ from pkf.cli import main
 PROMPT_S = 10.0
 
 
+def _as_from_a_terminal():
+    """Child set-up: SIGINT back to its default. A shell that starts a job in the background
+    (`.ci/run &`) makes it ignore SIGINT, the children inherit that, and Python then installs
+    no KeyboardInterrupt handler at all: the Ctrl-C of these tests would never arrive."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _env():
     env = dict(os.environ)
     src = str(Path(pkf.__file__).resolve().parents[1])
@@ -35,7 +42,8 @@ def test_ctrl_c_stops_reconstruct_within_seconds_and_leaves_a_resumable_run(tmp_
     out = tmp_path / "run"
     command = [sys.executable, "-m", "pkf.cli", "reconstruct", str(data), "--out", str(out), "--fitter",
                "parametrized", "--workers", "1", "--events-per-batch", "2"]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), text=True)
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), text=True,
+                            preexec_fn=_as_from_a_terminal)
     journal = tmp_path / ".run.partial" / "_journal"
     deadline = time.monotonic() + 240.0
     while proc.poll() is None and time.monotonic() < deadline and not any(journal.glob("*.json")):
@@ -64,7 +72,8 @@ def test_ctrl_c_stops_reconstruct_within_seconds_and_leaves_a_resumable_run(tmp_
 def test_ctrl_c_while_pkf_starts_exits_130_without_a_traceback(tmp_path):
     """Importing numba, scipy and the kernels takes ~1 s: Ctrl-C then used to print a traceback."""
     command = [sys.executable, "-m", "pkf", "simulate", "--out", str(tmp_path / "d"), "--events", "1"]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), text=True)
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), text=True,
+                            preexec_fn=_as_from_a_terminal)
     time.sleep(0.25)  # python is up, pkf.cli is being imported
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
