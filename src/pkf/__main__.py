@@ -16,7 +16,9 @@ def main() -> int:
         seen.append(signum)
         signal.default_int_handler(signum, frame)
 
-    signal.signal(signal.SIGINT, on_sigint)
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is signal.default_int_handler:  # not where SIGINT is ignored (a background job)
+        signal.signal(signal.SIGINT, on_sigint)
     try:
         from pkf.cli import main as cli_main
     except BaseException as exc:
@@ -26,7 +28,7 @@ def main() -> int:
             return 130
         raise
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, previous)
     return cli_main()
 
 
