@@ -493,12 +493,16 @@ def _clopper_pearson(k: np.ndarray, n: np.ndarray, cl: float = 0.6827) -> tuple[
 def efficiency_in_bins(values: np.ndarray, found: np.ndarray, edges: np.ndarray) -> dict:
     """Efficiency of ``found`` among particles binned in ``values`` ([lo, hi) bins),
     with Clopper–Pearson 68.3% errors (``error_low``/``error_high`` are distances)."""
-    values = np.asarray(values, dtype=float)
+    return efficiency_of_bins(bin_index(values, edges), found, edges.size - 1)
+
+
+def efficiency_of_bins(idx: np.ndarray, found: np.ndarray, n_bins: int) -> dict:
+    """:func:`efficiency_in_bins` with each particle's bin index given (:func:`bin_index`)."""
     found = np.asarray(found, dtype=bool)
-    idx = np.digitize(values, edges) - 1
-    inside = (idx >= 0) & (idx < edges.size - 1)
-    n = np.bincount(idx[inside], minlength=edges.size - 1)
-    k = np.bincount(idx[inside], weights=found[inside], minlength=edges.size - 1).astype(np.int64)
+    idx = np.asarray(idx, dtype=np.int64)
+    inside = (idx >= 0) & (idx < n_bins)
+    n = np.bincount(idx[inside], minlength=n_bins)
+    k = np.bincount(idx[inside], weights=found[inside], minlength=n_bins).astype(np.int64)
     with np.errstate(invalid="ignore", divide="ignore"):
         eff = np.where(n > 0, k / np.maximum(n, 1), np.nan)
     lo, hi = _clopper_pearson(k, n)
@@ -518,20 +522,23 @@ class DatasetTruth:
     status: str  # "ok" or why not available
     n_events: int = 0
     reco_key: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted particle keys
-    reco_p: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    reco_eta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: bin of each one's true p in P_EDGES_MEV and of its η in ETA_EDGES (:func:`bin_index`, int8):
+    #: all the efficiencies need of them, 2 bytes per particle instead of 16
+    reco_p_bin: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    reco_eta_bin: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
     kaon_keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))  # per B_s decay
     n_bs: int = 0
     kaon_particles: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted, |pdg| = 321
-    #: "upstream", "velo" → (sorted keys, p [MeV], η) of the particles reconstructible as that type
-    #: (long: reco_key, reco_p, reco_eta)
+    #: "upstream", "velo" → (sorted keys, p bin, η bin) of the particles reconstructible as that
+    #: type (long: reco_key, reco_p_bin, reco_eta_bin)
     by_type: dict = field(default_factory=dict)
 
     def reconstructible(self, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(sorted keys, p [MeV], η) of the particles reconstructible as ``kind`` (:data:`TRACK_TYPES`)."""
+        """(sorted keys, p bin, η bin) of the particles reconstructible as ``kind`` (:data:`TRACK_TYPES`)."""
         if kind == "long":
-            return self.reco_key, self.reco_p, self.reco_eta
-        return self.by_type.get(kind, (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)))
+            return self.reco_key, self.reco_p_bin, self.reco_eta_bin
+        none = np.zeros(0, dtype=np.int8)
+        return self.by_type.get(kind, (np.zeros(0, dtype=np.int64), none, none))
 
 
 @dataclass
@@ -578,9 +585,9 @@ def _efficiency_section(truth: DatasetTruth, tracks_of: EntryTracks, has_mc: boo
         ghost_rate=ghost_rate,
         clone_rate=clone_rate,
         p_edges_mev=P_EDGES_MEV.tolist(),
-        vs_p=efficiency_in_bins(truth.reco_p, found, P_EDGES_MEV),
+        vs_p=efficiency_of_bins(truth.reco_p_bin, found, P_EDGES_MEV.size - 1),
         eta_edges=ETA_EDGES.tolist(),
-        vs_eta=efficiency_in_bins(truth.reco_eta, found, ETA_EDGES),
+        vs_eta=efficiency_of_bins(truth.reco_eta_bin, found, ETA_EDGES.size - 1),
         by_type=by_type,
     )
 
@@ -599,7 +606,7 @@ def _efficiency_by_type(truth: DatasetTruth, tracks_of: EntryTracks) -> dict:
     reconstructible particles in the dataset is left out."""
     out = {}
     for kind, (reconstructible, found_by) in EFFICIENCY_TYPES.items():
-        keys, p, eta = truth.reconstructible(kind)
+        keys, p_bin, eta_bin = truth.reconstructible(kind)
         if keys.size == 0:
             continue
         # a run without track_type on a detector without UT and SciFi: every track is long
@@ -611,8 +618,8 @@ def _efficiency_by_type(truth: DatasetTruth, tracks_of: EntryTracks) -> dict:
             "reconstructible": int(keys.size),
             "found": int(found.sum()),
             "efficiency": _f(found.mean()),
-            "vs_p": efficiency_in_bins(p, found, P_EDGES_MEV),
-            "vs_eta": efficiency_in_bins(eta, found, ETA_EDGES),
+            "vs_p": efficiency_of_bins(p_bin, found, P_EDGES_MEV.size - 1),
+            "vs_eta": efficiency_of_bins(eta_bin, found, ETA_EDGES.size - 1),
         }
     return out
 
