@@ -72,3 +72,14 @@ def test_plots_keep_histograms_not_tracks(tmp_path):
     for par, h in arrays.pulls.items():  # long matched tracks: their pulls within ±5 or outside
         assert h.sum(flow=True) == np.sum(ok & ~ghost & (types == "long"))
         assert arrays.pulls_outside[par] <= h.sum(flow=True) - h.sum()
+
+
+def test_bin_index_selects_the_same_values_as_the_half_open_bins():
+    """The int8 bins kept instead of p_true and η select exactly the values [lo, hi) selected."""
+    for edges in (P_EDGES_MEV, ETA_EDGES):
+        values = np.r_[edges, np.nextafter(edges, -np.inf), np.nextafter(edges, np.inf),
+                       np.linspace(edges[0] - 1, edges[-1] + 1, 1001), np.nan, np.inf, -np.inf]
+        index = bin_index(values, edges)
+        assert index.dtype == np.int8
+        for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+            np.testing.assert_array_equal(index == i, (values >= lo) & (values < hi))
