@@ -51,13 +51,19 @@ def test_pulls_equal_pulls_table(telescope_runs, telescope_report, fitter):
     assert section["available"] and section["location"] == "first_hit"
     for par in ("x", "y", "tx", "ty", "qop"):
         values = np.asarray(pulls[f"pull_{par}"])
-        core = gaussian_core(values)
+        kept = values.astype(np.float32)  # the report keeps per-track pulls as float32 (memory)
+        core = gaussian_core(kept)
         got = section["parameters"][par]
         assert got["n"] == values.size > 500
         assert got["mean"] == pytest.approx(core.mean, rel=1e-12, abs=1e-15)
         assert got["width"] == pytest.approx(core.sigma, rel=1e-12)
         assert got["width_error"] == pytest.approx(core.sigma_error, rel=1e-9)
-        assert got["rms"] == pytest.approx(_rms(values), rel=1e-12)
+        assert got["rms"] == pytest.approx(_rms(kept.astype(np.float64)), rel=1e-12)
+        # float32 moves the fit by far less than its statistical error (measured: < 1e-6 of it)
+        exact = gaussian_core(values)
+        assert abs(got["mean"] - exact.mean) < 1e-4 * exact.mean_error
+        assert abs(got["width"] - exact.sigma) < 1e-4 * exact.sigma_error
+        assert got["rms"] == pytest.approx(_rms(values), rel=1e-6)
         # the telescope fit is exact: the pulls are standard normal
         assert abs(got["mean"]) < 0.2 and 0.85 < got["width"] < 1.15
 
@@ -78,7 +84,8 @@ def test_resolutions_equal_pulls_table(telescope_runs, telescope_report, fitter)
     checked = 0
     for var, v in values.items():
         got = res["variables"][var]
-        assert got["all"]["rms"] == pytest.approx(_rms(v), rel=1e-9)
+        # the report keeps residuals and δp/p as float32: each value within 6e-8 relative
+        assert got["all"]["rms"] == pytest.approx(_rms(v), rel=1e-7)
         assert got["all"]["core_sigma"] == pytest.approx(gaussian_core(v).sigma, rel=1e-6)
         for i, (lo, hi) in enumerate(zip(P_EDGES_MEV[:-1], P_EDGES_MEV[1:])):
             in_bin = v[(p_true >= lo) & (p_true < hi)]
@@ -86,7 +93,7 @@ def test_resolutions_equal_pulls_table(telescope_runs, telescope_report, fitter)
             if in_bin.size == 0:
                 assert got["bins"]["rms"][i] is None
                 continue
-            assert got["bins"]["rms"][i] == pytest.approx(_rms(in_bin), rel=1e-9)
+            assert got["bins"]["rms"][i] == pytest.approx(_rms(in_bin), rel=1e-7)
             if in_bin.size >= 10:
                 assert got["bins"]["core_sigma"][i] == pytest.approx(gaussian_core(in_bin).sigma, rel=1e-6)
                 checked += 1

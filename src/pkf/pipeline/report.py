@@ -26,7 +26,7 @@ from pkf.pipeline.matching import (
     velo_reconstructible_particles,
 )
 from pkf.report.html import render_html
-from pkf.report.metrics import DatasetTruth, compute_report, lookup_sorted
+from pkf.report.metrics import ETA_EDGES, P_EDGES_MEV, DatasetTruth, bin_index, compute_report, lookup_sorted
 from pkf.report.runs import RunInput, column, load_runs, parse_run_spec
 
 __all__ = ["run_report", "load_truth", "load_truths", "REPORT_FILES"]
@@ -133,7 +133,7 @@ def load_truth(run: RunInput, progress=None) -> DatasetTruth:
     quads = np.concatenate([part["quads"] for part in parts])
     quads = quads[np.argsort(quads[:, 0], kind="stable")]  # as one dict over all kaons in key order
     by_type = {}
-    for kind in ("upstream", "velo"):  # long: reco_key, reco_p, reco_eta
+    for kind in ("upstream", "velo"):  # long: reco_key, reco_p_bin, reco_eta_bin
         keys = np.concatenate([part[kind][0] for part in parts])
         k_order = np.argsort(keys, kind="stable")
         by_type[kind] = tuple(np.concatenate([part[kind][i] for part in parts])[k_order] for i in range(3))
@@ -145,8 +145,9 @@ def load_truth(run: RunInput, progress=None) -> DatasetTruth:
 
 def _truth_of_part(geometry, dataset: Dataset) -> dict:
     """What :func:`load_truth` keeps of some whole events: the reconstructible particles' keys
-    (sorted), true p [MeV] and η (long; and (keys, p, η) of the upstream and VELO reconstructible
-    ones); the kaon keys of each B_s decay (rows of four, sorted); the number of B_s; the keys
+    (sorted) and the bins of their true p and η (:func:`~pkf.report.metrics.bin_index` in
+    P_EDGES_MEV and ETA_EDGES; long, and (keys, p bin, η bin) of the upstream and VELO
+    reconstructible ones); the kaon keys of each B_s decay (rows of four, sorted); the number of B_s; the keys
     of every kaon."""
     hits = dataset.hits
     event_id = column(hits, "event_id", np.int64)
@@ -169,10 +170,11 @@ def _truth_of_part(geometry, dataset: Dataset) -> dict:
     p = np.sqrt(pt**2 + pz**2)
     with np.errstate(divide="ignore", invalid="ignore"):
         eta = -np.log(np.tan(0.5 * np.arctan2(pt, pz)))
+    p_bin, eta_bin = bin_index(p, P_EDGES_MEV), bin_index(eta, ETA_EDGES)
     by_type = {}
     for kind, keys in reco_of.items():
         kpos, _ = lookup_sorted(p_key_sorted, keys)
-        by_type[kind] = (keys, p[kpos], eta[kpos])
+        by_type[kind] = (keys, p_bin[kpos], eta_bin[kpos])
 
     # B_s → φφ, φ → K⁺K⁻: group signal kaons by their grand-parent
     pdg = column(parts, "pdg", np.int64)[order]
@@ -191,7 +193,7 @@ def _truth_of_part(geometry, dataset: Dataset) -> dict:
     for k_key, g_key in zip(p_key_sorted[is_kaon], grand_key[is_kaon]):
         kaons_of.setdefault(int(g_key), []).append(int(k_key))
     quads = [sorted(v) for v in kaons_of.values() if len(v) == 4]
-    return {"reco": reco, "p": p[pos], "eta": eta[pos], "quads": np.array(quads, dtype=np.int64).reshape(-1, 4),
+    return {"reco": reco, "p": p_bin[pos], "eta": eta_bin[pos], "quads": np.array(quads, dtype=np.int64).reshape(-1, 4),
             "n_bs": int(bs.sum()), "kaons": p_key_sorted[np.abs(pdg) == PDG_KAON], **by_type}
 
 

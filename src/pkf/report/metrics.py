@@ -122,6 +122,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import hist
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -181,18 +182,47 @@ PULL_PARAMETERS = ("x", "y", "tx", "ty", "qop")
 _KEY = 1 << 32
 
 
+#: Pull histograms of the plots: 50 bins over [-5, 5) (values outside go to the flow bins).
+PULL_HISTOGRAM = (50, -5.0, 5.0)
+#: χ²/ndf histograms of the plots: 50 bins over [0, 10), overflow clipped into the last bin.
+CHI2_NDF_HISTOGRAM = (50, 0.0, 10.0)
+
+
+def pull_histogram(values: np.ndarray) -> hist.Hist:
+    """The finite pulls in :data:`PULL_HISTOGRAM` bins (what the pull figure draws)."""
+    values = np.asarray(values)
+    h = hist.Hist(hist.axis.Regular(*PULL_HISTOGRAM, name="pull"))
+    h.fill(values[np.isfinite(values)])
+    return h
+
+
+def chi2_ndf_histogram(values: np.ndarray) -> hist.Hist:
+    """χ²/ndf values (finite) in :data:`CHI2_NDF_HISTOGRAM` bins, overflow in the last bin."""
+    n, lo, hi = CHI2_NDF_HISTOGRAM
+    h = hist.Hist(hist.axis.Regular(n, lo, hi, name="chi2ndf"))
+    h.fill(np.clip(values, lo, hi - 1e-9))
+    return h
+
+
 @dataclass
 class FitterArrays:
-    """Per-fitter values the plots need (numpy arrays; empty when not available)."""
+    """Per-entry histograms and values the plots need (kept until the plots are drawn, so they
+    are histograms, not per-track arrays, except for the few B_s candidates).
 
-    p_true: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    residuals: dict[str, np.ndarray] = field(default_factory=dict)
-    pulls: dict[str, np.ndarray] = field(default_factory=dict)
-    chi2_ndf_real: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    chi2_ndf_ghost: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    chi2_ndf_all: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    #: per track type present: (real, ghost) χ²/ndf of the ok tracks (without MC: (all, empty))
-    chi2_ndf_by_type: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    ``pulls``: per pull parameter the histogram of the long tracks' finite first-hit pulls
+    (:func:`pull_histogram`); ``pulls_outside``: how many of them have |pull| ≥ 5.
+    ``chi2_ndf_real``, ``chi2_ndf_ghost``, ``chi2_ndf_all``: χ²/ndf histograms of the ok
+    tracks (:func:`chi2_ndf_histogram`; None when there is no such track);
+    ``chi2_ndf_by_type``: per track type present (real, ghost) histograms (without MC:
+    (all, None)). A histogram's ``sum()`` is its number of tracks.
+    """
+
+    pulls: dict[str, hist.Hist] = field(default_factory=dict)
+    pulls_outside: dict[str, int] = field(default_factory=dict)
+    chi2_ndf_real: hist.Hist | None = None
+    chi2_ndf_ghost: hist.Hist | None = None
+    chi2_ndf_all: hist.Hist | None = None
+    chi2_ndf_by_type: dict[str, tuple] = field(default_factory=dict)
     masses: np.ndarray = field(default_factory=lambda: np.zeros(0))  # all-kaon B_s candidates (Fig. 4)
     signal_masses: np.ndarray = field(default_factory=lambda: np.zeros(0))  # truth-matched decays
     mass_decays: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # decay index per signal mass
@@ -224,7 +254,8 @@ def _f(value) -> float | None:
 
 
 def _rms(values: np.ndarray) -> float:
-    v = values[np.isfinite(values)]
+    """sqrt(mean(v²)) of the finite values, summed in float64 (also for float32 values)."""
+    v = values[np.isfinite(values)].astype(np.float64, copy=False)
     return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
 
 
@@ -316,6 +347,12 @@ def delta_p_over_p(pulls: pa.Table, states: pa.Table) -> np.ndarray:
     return out
 
 
+def bin_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Index i of the bin [edges[i], edges[i+1]) of each value (int8); -1 below the first edge,
+    ``edges.size - 1`` at or above the last one and for NaN (outside every bin)."""
+    return (np.searchsorted(edges, np.asarray(values, dtype=float), side="right") - 1).astype(np.int8)
+
+
 def resolution_summary(p_true: np.ndarray, values: np.ndarray, p_edges: np.ndarray = P_EDGES_MEV) -> dict:
     """RMS and Gaussian core of ``values`` over all tracks and in bins of ``p_true`` [MeV].
 
@@ -323,11 +360,16 @@ def resolution_summary(p_true: np.ndarray, values: np.ndarray, p_edges: np.ndarr
     ``core_mean``, ``core_sigma``, ``core_sigma_error``, ``core_valid``. Bins are
     [lo, hi) in p_true.
     """
-    p_true = np.asarray(p_true, dtype=float)
-    values = np.asarray(values, dtype=float)
+    return resolution_in_bins(bin_index(p_true, p_edges), values, p_edges.size - 1)
+
+
+def resolution_in_bins(p_bin: np.ndarray, values: np.ndarray, n_bins: int) -> dict:
+    """:func:`resolution_summary` with each value's momentum bin given (:func:`bin_index`):
+    the values may be float32 (the report keeps per-track values so); the sums and fits are
+    made in float64."""
     bins: dict[str, list] = {k: [] for k in ("n", "rms", "core_mean", "core_sigma", "core_sigma_error", "core_valid")}
-    for lo, hi in zip(p_edges[:-1], p_edges[1:]):
-        stats = _core_stats(values[(p_true >= lo) & (p_true < hi)])
+    for i in range(n_bins):
+        stats = _core_stats(values[p_bin == i])
         for k in bins:
             bins[k].append(stats[k])
     return {"all": _core_stats(values), "bins": bins}
@@ -451,12 +493,16 @@ def _clopper_pearson(k: np.ndarray, n: np.ndarray, cl: float = 0.6827) -> tuple[
 def efficiency_in_bins(values: np.ndarray, found: np.ndarray, edges: np.ndarray) -> dict:
     """Efficiency of ``found`` among particles binned in ``values`` ([lo, hi) bins),
     with Clopper–Pearson 68.3% errors (``error_low``/``error_high`` are distances)."""
-    values = np.asarray(values, dtype=float)
+    return efficiency_of_bins(bin_index(values, edges), found, edges.size - 1)
+
+
+def efficiency_of_bins(idx: np.ndarray, found: np.ndarray, n_bins: int) -> dict:
+    """:func:`efficiency_in_bins` with each particle's bin index given (:func:`bin_index`)."""
     found = np.asarray(found, dtype=bool)
-    idx = np.digitize(values, edges) - 1
-    inside = (idx >= 0) & (idx < edges.size - 1)
-    n = np.bincount(idx[inside], minlength=edges.size - 1)
-    k = np.bincount(idx[inside], weights=found[inside], minlength=edges.size - 1).astype(np.int64)
+    idx = np.asarray(idx, dtype=np.int64)
+    inside = (idx >= 0) & (idx < n_bins)
+    n = np.bincount(idx[inside], minlength=n_bins)
+    k = np.bincount(idx[inside], weights=found[inside], minlength=n_bins).astype(np.int64)
     with np.errstate(invalid="ignore", divide="ignore"):
         eff = np.where(n > 0, k / np.maximum(n, 1), np.nan)
     lo, hi = _clopper_pearson(k, n)
@@ -476,14 +522,41 @@ class DatasetTruth:
     status: str  # "ok" or why not available
     n_events: int = 0
     reco_key: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted particle keys
-    reco_p: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    reco_eta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: bin of each one's true p in P_EDGES_MEV and of its η in ETA_EDGES (:func:`bin_index`, int8):
+    #: all the efficiencies need of them, 2 bytes per particle instead of 16
+    reco_p_bin: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    reco_eta_bin: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
     kaon_keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))  # per B_s decay
     n_bs: int = 0
     kaon_particles: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # sorted, |pdg| = 321
-    #: "upstream", "velo" → (sorted keys, p [MeV], η) of the particles reconstructible as that type
-    #: (long: reco_key, reco_p, reco_eta)
+    #: "upstream", "velo" → (sorted keys, p bin, η bin) of the particles reconstructible as that
+    #: type (long: reco_key, reco_p_bin, reco_eta_bin)
     by_type: dict = field(default_factory=dict)
+
+    def reconstructible(self, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(sorted keys, p bin, η bin) of the particles reconstructible as ``kind`` (:data:`TRACK_TYPES`)."""
+        if kind == "long":
+            return self.reco_key, self.reco_p_bin, self.reco_eta_bin
+        none = np.zeros(0, dtype=np.int8)
+        return self.by_type.get(kind, (np.zeros(0, dtype=np.int64), none, none))
+
+
+@dataclass
+class FoundFlags:
+    """Which particles of a sorted key set (``keys``) a track matches, marked part by part:
+    one byte per particle, instead of the particle keys of the matched tracks."""
+
+    keys: np.ndarray
+    flags: np.ndarray
+
+    @classmethod
+    def over(cls, keys: np.ndarray) -> "FoundFlags":
+        return cls(keys, np.zeros(keys.size, dtype=bool))
+
+    def mark(self, found_keys: np.ndarray) -> None:
+        """Flag the particles among ``found_keys`` (keys not in ``keys`` are ignored)."""
+        pos, hit = lookup_sorted(self.keys, found_keys)
+        self.flags[pos[hit]] = True
 
 
 def _found_particles(chi2: pa.Table, ok_only: bool) -> np.ndarray:
@@ -499,7 +572,7 @@ def _efficiency_section(truth: DatasetTruth, tracks_of: EntryTracks, has_mc: boo
         return _section(False, "no MC truth in this run")
     if truth.status != "ok":
         return _section(False, truth.status)
-    found = np.isin(truth.reco_key, _found(tracks_of.found_ok))
+    found = tracks_of.found_ok.flags
     ghost_rate, clone_rate = _rates_of_counts(tracks_of.rates_ok)
     n = int(truth.reco_key.size)
     by_type = _efficiency_by_type(truth, tracks_of)
@@ -512,9 +585,9 @@ def _efficiency_section(truth: DatasetTruth, tracks_of: EntryTracks, has_mc: boo
         ghost_rate=ghost_rate,
         clone_rate=clone_rate,
         p_edges_mev=P_EDGES_MEV.tolist(),
-        vs_p=efficiency_in_bins(truth.reco_p, found, P_EDGES_MEV),
+        vs_p=efficiency_of_bins(truth.reco_p_bin, found, P_EDGES_MEV.size - 1),
         eta_edges=ETA_EDGES.tolist(),
-        vs_eta=efficiency_in_bins(truth.reco_eta, found, ETA_EDGES),
+        vs_eta=efficiency_of_bins(truth.reco_eta_bin, found, ETA_EDGES.size - 1),
         by_type=by_type,
     )
 
@@ -531,24 +604,22 @@ EFFICIENCY_TYPES = {
 def _efficiency_by_type(truth: DatasetTruth, tracks_of: EntryTracks) -> dict:
     """Efficiency vs p and η per track type (:data:`EFFICIENCY_TYPES`); a type without
     reconstructible particles in the dataset is left out."""
-    found_of = tracks_of.found_by_type
-    if tracks_of.every_track_long:  # a run without track_type on a detector without UT and SciFi
-        found_of = {"long": [part for parts in found_of.values() for part in parts], "upstream": [], "velo": []}
     out = {}
     for kind, (reconstructible, found_by) in EFFICIENCY_TYPES.items():
-        keys, p, eta = ((truth.reco_key, truth.reco_p, truth.reco_eta) if kind == "long"
-                        else truth.by_type.get(kind, (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))))
+        keys, p_bin, eta_bin = truth.reconstructible(kind)
         if keys.size == 0:
             continue
-        found = np.isin(keys, _found([part for t in found_by for part in found_of[t]]))
+        # a run without track_type on a detector without UT and SciFi: every track is long
+        sources = TRACK_TYPES if tracks_of.every_track_long else found_by
+        found = np.logical_or.reduce([tracks_of.found_by_type[t][kind].flags for t in sources])
         out[kind] = {
             "reconstructible_as": reconstructible,
             "found_by": list(found_by),
             "reconstructible": int(keys.size),
             "found": int(found.sum()),
             "efficiency": _f(found.mean()),
-            "vs_p": efficiency_in_bins(p, found, P_EDGES_MEV),
-            "vs_eta": efficiency_in_bins(eta, found, ETA_EDGES),
+            "vs_p": efficiency_of_bins(p_bin, found, P_EDGES_MEV.size - 1),
+            "vs_eta": efficiency_of_bins(eta_bin, found, ETA_EDGES.size - 1),
         }
     return out
 
@@ -707,8 +778,11 @@ def _timing_section(run: RunInput, name: str) -> dict:
 
 
 _PULL_COLUMNS = tuple(f"pull_{p}" for p in PULL_PARAMETERS)
-_FIRST_COLUMNS = ("p_true", *(f"res_{v}" for v in ("x", "y", "tx", "ty")), *_PULL_COLUMNS)
-_ALL_FIRST_COLUMNS = (*_FIRST_COLUMNS, "dp_over_p")
+_FIRST_COLUMNS = (*(f"res_{v}" for v in ("x", "y", "tx", "ty")), *_PULL_COLUMNS)
+#: What the report keeps per first-hit pull row of a long track: the bin of p_true in
+#: P_EDGES_MEV (int8) and the residuals, pulls and δp/p as float32 (relative rounding 6e-8,
+#: far below the statistical errors of their RMS and core fits, which are made in float64).
+_ALL_FIRST_COLUMNS = ("p_bin", *_FIRST_COLUMNS, "dp_over_p")
 _KAON_CHI2_COLUMNS = ("event_id", "track_id", "mc_particle_id", "match_fraction", "is_ghost")
 _KAON_STATE_COLUMNS = ("event_id", "track_id", "qop", "tx", "ty", "z")
 
@@ -749,13 +823,17 @@ class EntryTracks:
     """
 
     fitter: str
+    #: the dataset's MC truth (its reconstructible particles are flagged as found part by part)
+    truth: DatasetTruth = field(default_factory=lambda: DatasetTruth("no MC truth"))
     total: int = 0
     chi2_ndf: list = field(default_factory=list)  # ok tracks
     ghost: list = field(default_factory=list)  # ok tracks
     chi2_type: list = field(default_factory=list)  # ok tracks: index into TRACK_TYPES (int8)
-    found_ok: list = field(default_factory=list)  # particle keys matched by an ok track
-    found_any: list = field(default_factory=list)  # particle keys matched by any track
-    found_by_type: dict = field(default_factory=lambda: {kind: [] for kind in TRACK_TYPES})  # ok tracks
+    #: long reconstructible particles matched by an ok track / by any track
+    found_ok: FoundFlags = field(init=False)
+    found_any: FoundFlags = field(init=False)
+    #: track type of the ok track → kind of reconstructible particle → flags of those it matches
+    found_by_type: dict = field(init=False)
     rates_ok: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
     rates_any: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))
     # first-hit pull rows per track type: every column for long tracks (resolution and pulls),
@@ -765,6 +843,12 @@ class EntryTracks:
     kaon_states: list = field(default_factory=list)
     explicit_types: bool = False  # chi2 has a track_type column
     spans_detector: bool = False  # some track has UT or SciFi hits (else every track is long)
+
+    def __post_init__(self):
+        self.found_ok = FoundFlags.over(self.truth.reco_key)
+        self.found_any = FoundFlags.over(self.truth.reco_key)
+        self.found_by_type = {track: {kind: FoundFlags.over(self.truth.reconstructible(kind)[0])
+                                      for kind in TRACK_TYPES} for track in TRACK_TYPES}
 
     def add(self, chi2: pa.Table, states: pa.Table, pulls: pa.Table | None,
             kaon_particles: np.ndarray | None) -> None:
@@ -778,10 +862,12 @@ class EntryTracks:
         self.ghost.append(column(chi2_ok, "is_ghost", bool))
         ok_types = types[ok.to_numpy(zero_copy_only=False)]
         self.chi2_type.append(_type_codes(ok_types))
-        for kind in TRACK_TYPES:
-            self.found_by_type[kind].append(_found_particles(chi2_ok.filter(pa.array(ok_types == kind)), ok_only=False))
-        self.found_ok.append(_found_particles(chi2_ok, ok_only=True))
-        self.found_any.append(_found_particles(chi2, ok_only=False))
+        for track in TRACK_TYPES:
+            found = _found_particles(chi2_ok.filter(pa.array(ok_types == track)), ok_only=False)
+            for flags in self.found_by_type[track].values():
+                flags.mark(found)
+        self.found_ok.mark(_found_particles(chi2_ok, ok_only=True))
+        self.found_any.mark(_found_particles(chi2, ok_only=False))
         self.rates_ok += _rate_counts(chi2_ok)
         self.rates_any += _rate_counts(chi2)
         if pulls is not None:
@@ -808,8 +894,9 @@ class EntryTracks:
     def _add_first_hit(self, chi2: pa.Table, states: pa.Table, pulls: pa.Table, types: np.ndarray) -> None:
         first = rows_of(pulls, self.fitter, RESOLUTION_LOCATION)
         kinds = _types_of(first, chi2, types)
-        values = {name: column(first, name) for name in _FIRST_COLUMNS}
-        values["dp_over_p"] = delta_p_over_p(first, states)
+        values = {name: column(first, name, np.float32) for name in _FIRST_COLUMNS}
+        values["dp_over_p"] = delta_p_over_p(first, states).astype(np.float32)
+        values["p_bin"] = bin_index(column(first, "p_true"), P_EDGES_MEV)
         # without track_type and with no UT/SciFi hit so far every track may turn out to be long
         # (first_hit): its "velo" rows keep every column until then
         maybe_long = {"long", "velo"} if self.every_track_long else {"long"}
@@ -832,8 +919,8 @@ class EntryTracks:
 
     def first_hit(self) -> dict[str, dict[str, np.ndarray]]:
         """The first-hit pull rows per track type, in the run's row order: for ``long`` the
-        columns p_true, res_*, pull_*, dp_over_p; for ``upstream`` and ``velo`` the pull_*
-        columns. Consumes the parts (one column's parts and its concatenation in memory at a time)."""
+        columns p_bin (bin of p_true in P_EDGES_MEV), res_*, pull_*, dp_over_p (float32); for
+        ``upstream`` and ``velo`` the pull_* columns. Consumes the parts (one column's parts and its concatenation in memory at a time)."""
         first, self.first = self.first, {}
         if self.every_track_long:  # e.g. the telescope
             first["long"] = first.pop("velo")  # (no "long" or "upstream" row without UT/SciFi hits)
@@ -844,7 +931,8 @@ class EntryTracks:
             by_type[kind] = {}
             for name in wanted:
                 parts = first[kind].pop(name, [])
-                by_type[kind][name] = np.concatenate(parts) if parts else np.zeros(0)
+                empty = np.zeros(0, dtype=np.int8 if name == "p_bin" else np.float32)
+                by_type[kind][name] = np.concatenate(parts) if parts else empty
                 del parts
         return by_type
 
@@ -873,7 +961,7 @@ def read_entries(run: RunInput, truth: DatasetTruth, progress=None) -> dict[str,
 
     progress: called with the number of events of each part read (run.json ``partitions``).
     """
-    entries = {name: EntryTracks(name) for name in run.fitters}
+    entries = {name: EntryTracks(name, truth) for name in run.fitters}
     kaons = _kaon_particles(run, truth)
     events_of = {p.get("name"): p.get("events", 0) for p in run.info.get("partitions") or []
                  if isinstance(p, dict)}
@@ -907,19 +995,20 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
     else:
         first = tracks_of.first_hit()
         long = first["long"]
-        arrays.p_true = long["p_true"]
-        arrays.residuals = {"dp_over_p": long["dp_over_p"]}
-        for var in ("x", "y", "tx", "ty"):
-            arrays.residuals[var] = long[f"res_{var}"]
-        arrays.pulls = {par: long[f"pull_{par}"] for par in PULL_PARAMETERS}
-        empty = arrays.p_true.size == 0
+        empty = long["p_bin"].size == 0
         note = "no matched long track with a fitted first-hit state" if empty else None
+        residual = {"dp_over_p": "dp_over_p", **{var: f"res_{var}" for var in ("x", "y", "tx", "ty")}}
         resolution = _section(
             not empty, note, location=RESOLUTION_LOCATION, track_type="long", p_edges_mev=P_EDGES_MEV.tolist(),
-            variables={var: {"unit": unit, **resolution_summary(arrays.p_true, arrays.residuals[var])}
+            variables={var: {"unit": unit, **resolution_in_bins(long["p_bin"], long[residual[var]],
+                                                                 P_EDGES_MEV.size - 1)}
                        for var, unit in RESOLUTION_VARIABLES.items()},
             ratio_to_reference=None,
         )
+        for par in PULL_PARAMETERS:
+            values = long[f"pull_{par}"]
+            arrays.pulls[par] = pull_histogram(values)
+            arrays.pulls_outside[par] = int(np.sum(np.abs(values[np.isfinite(values)]) >= 5))
         by_type = {}
         for kind in TRACK_TYPES:
             n_tracks = first[kind]["pull_x"].size
@@ -927,26 +1016,27 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
                 by_type[kind] = {"n_tracks": int(n_tracks),
                                  **{par: pull_summary(first[kind][f"pull_{par}"]) for par in PULL_PARAMETERS}}
         pulls = _section(not empty, note, location=PULL_LOCATION, track_type="long",
-                         parameters={par: pull_summary(arrays.pulls[par]) for par in PULL_PARAMETERS},
+                         parameters={par: pull_summary(long[f"pull_{par}"]) for par in PULL_PARAMETERS},
                          by_type=by_type)
         del first, long
 
     # χ²/ndf (Fig. 3)
     chi2_section = chi2_summary(chi2_ndf, ghost_ok, run.has_mc)
-    arrays.chi2_ndf_all = chi2_ndf[np.isfinite(chi2_ndf)]
+    finite = np.isfinite(chi2_ndf)
+    arrays.chi2_ndf_all = _chi2_ndf_histogram_or_none(chi2_ndf[finite])
     if run.has_mc:
-        arrays.chi2_ndf_real = chi2_ndf[~ghost_ok & np.isfinite(chi2_ndf)]
-        arrays.chi2_ndf_ghost = chi2_ndf[ghost_ok & np.isfinite(chi2_ndf)]
+        arrays.chi2_ndf_real = _chi2_ndf_histogram_or_none(chi2_ndf[~ghost_ok & finite])
+        arrays.chi2_ndf_ghost = _chi2_ndf_histogram_or_none(chi2_ndf[ghost_ok & finite])
     chi2_section["by_type"] = {}
     for i, kind in enumerate(TRACK_TYPES):
         rows = type_ok == i
         if rows.any():
             chi2_section["by_type"][kind] = chi2_summary(chi2_ndf[rows], ghost_ok[rows], run.has_mc)
-            values, ghost = chi2_ndf[rows], ghost_ok[rows]
-            finite = np.isfinite(values)
-            arrays.chi2_ndf_by_type[kind] = ((values[finite & ~ghost], values[finite & ghost]) if run.has_mc
-                                             else (values[finite], np.zeros(0)))
-    del type_ok
+            values, ghost, kept = chi2_ndf[rows], ghost_ok[rows], finite[rows]
+            arrays.chi2_ndf_by_type[kind] = (
+                (_chi2_ndf_histogram_or_none(values[kept & ~ghost]), _chi2_ndf_histogram_or_none(values[kept & ghost]))
+                if run.has_mc else (_chi2_ndf_histogram_or_none(values[kept]), None))
+    del type_ok, finite
 
     # B_s mass (Fig. 4)
     if not run.has_mc:
@@ -988,8 +1078,8 @@ def _fitter_report(run: RunInput, run_index: int, name: str, truth: DatasetTruth
     return report, arrays
 
 
-def _found(parts: list) -> np.ndarray:
-    return np.unique(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)
+def _chi2_ndf_histogram_or_none(values: np.ndarray) -> hist.Hist | None:
+    return chi2_ndf_histogram(values) if values.size else None
 
 
 def _run_summary(run: RunInput, truth: DatasetTruth | None, first_fitter: EntryTracks) -> dict:
@@ -999,7 +1089,7 @@ def _run_summary(run: RunInput, truth: DatasetTruth | None, first_fitter: EntryT
     recomputed = None
     if run.has_mc and truth is not None and truth.status == "ok":
         # candidate level: every fitter's chi2 rows list all candidates; take the first fitter's
-        found = np.isin(truth.reco_key, _found(first_fitter.found_any))
+        found = first_fitter.found_any.flags
         ghost_rate, clone_rate = _rates_of_counts(first_fitter.rates_any)
         recomputed = {
             "tracks": first_fitter.total,

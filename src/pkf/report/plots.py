@@ -206,9 +206,7 @@ def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
         arrays = data.arrays[name]
         fig, axes = plt.subplots(2, 3, figsize=(33, 20))
         for ax, par in zip(axes.flat, ("qop", "x", "tx", "y", "ty")):
-            values = arrays.pulls[par]
-            h = hist.Hist(hist.axis.Regular(50, -5, 5, name="pull", label=f"pull {_PULL_LABELS[par]}"))
-            h.fill(values[np.isfinite(values)])
+            h = arrays.pulls[par]  # pkf.report.metrics.pull_histogram
             mplhep.histplot(h, ax=ax, yerr=True, histtype="errorbar", color="black", label=f"{name}")
             stats = section["parameters"][par]
             text = [f"RMS = {_fmt(stats['rms'])}"]
@@ -224,8 +222,7 @@ def _plot_pulls(data: ReportData, out: Path, taken: set[str]) -> list[Plot]:
                         label="Gaussian fit")
                 text = [f"mean = {_fmt(stats['mean'])} $\\pm$ {_fmt(stats['mean_error'])}",
                         f"width = {_fmt(stats['width'])} $\\pm$ {_fmt(stats['width_error'])}"] + text
-            n_out = int(np.sum(np.abs(values[np.isfinite(values)]) >= 5))
-            text.append(f"outside $\\pm$5: {n_out}")
+            text.append(f"outside $\\pm$5: {arrays.pulls_outside[par]}")
             ax.text(0.03, 0.97, "\n".join(text), transform=ax.transAxes, va="top", ha="left", fontsize=18)
             ax.set_xlabel(f"pull {_PULL_LABELS[par]}")
             ax.set_ylabel("tracks / 0.2")
@@ -260,12 +257,10 @@ def _plot_chi2(data: ReportData, out: Path) -> list[Plot]:
         series = ([("real", arrays.chi2_ndf_real, "black"), ("ghost", arrays.chi2_ndf_ghost, "#FF3333")]
                   if section["has_mc"] else [("all tracks", arrays.chi2_ndf_all, "black")])
         drawn = False
-        for label, values, color in series:
-            if values.size == 0:
+        for label, h, color in series:
+            if h is None:
                 continue
-            h = hist.Hist(hist.axis.Regular(50, 0, 10, name="chi2ndf"))
-            h.fill(np.clip(values, 0, 10 - 1e-9))  # overflow into the last bin
-            mplhep.histplot(h, ax=ax, density=True, yerr=False, color=color, label=f"{label} ({values.size})")
+            mplhep.histplot(h, ax=ax, density=True, yerr=False, color=color, label=f"{label} ({int(h.sum())})")
             drawn = True
         any_ghosts |= bool(section["has_ghosts"])
         if not drawn:
@@ -368,15 +363,13 @@ def _plot_chi2_types(data: ReportData, out: Path) -> list[Plot]:
         has_mc = data.summary["entries"][name]["chi2"]["has_mc"]
         for col, kind in enumerate(kinds):
             ax = axes[row, col]
-            real, ghost = by_type.get(kind, (np.zeros(0), np.zeros(0)))
+            real, ghost = by_type.get(kind, (None, None))
             series = [("real", real, "black"), ("ghost", ghost, "#FF3333")] if has_mc else [("all", real, "black")]
             drawn = False
-            for label, values, color in series:
-                if values.size:
-                    h = hist.Hist(hist.axis.Regular(50, 0, 10, name="chi2ndf"))
-                    h.fill(np.clip(values, 0, 10 - 1e-9))  # overflow into the last bin
+            for label, h, color in series:
+                if h is not None:
                     mplhep.histplot(h, ax=ax, density=True, yerr=False, color=color,
-                                    label=f"{label} ({values.size})")
+                                    label=f"{label} ({int(h.sum())})")
                     drawn = True
             ax.set_title(f"{name}: {kind}", fontsize=24)
             if not drawn:
