@@ -550,7 +550,7 @@ class FoundFlags:
     flags: np.ndarray
 
     @classmethod
-    def over(cls, keys: np.ndarray) -> "FoundFlags":
+    def over(cls, keys: np.ndarray) -> FoundFlags:
         return cls(keys, np.zeros(keys.size, dtype=bool))
 
     def mark(self, found_keys: np.ndarray) -> None:
