@@ -227,6 +227,12 @@ def clean_ut_hits(lay, hits, cfg, filt, best, sm, n_fwd, nsig, prune, n_fit, chi
     ambiguous = cfg.opt[O_UT_AMBIGUOUS]
     n_ut = lay.n_ut
     path = best.path
+    n_u = 0
+    for j in range(n_ut):
+        if path[j] >= 0:
+            n_u += 1
+    if n_u == 0:
+        return n_fit, chi_f  # nothing to check (sm.chi2 stays NaN)
     changed = 0
     for _ in range(n_ut + 1):
         if not smooth_ut_chi2(filt, lay, hits, path, n_fwd, sm):
