@@ -85,7 +85,7 @@ class ForwardOptions:
     ut_ambiguous_chi2 [4]      (4) … a UT hit is dropped if another hit of its layer (taken or
                                not) has a χ² below this: close tracks in the u-only UT share
                                and swap hits (0: keep). ν = 7.6: correct extensions with a
-                               foreign UT hit 24 % → 6 %, UT hits per track 3.55 → 2.96
+                               foreign UT hit 24 % → 4.5 %, UT hits per track 3.55 → 2.93
     pvalue [1e-4]              (4) p-value cut on the final χ² (ndf = hits − 1)
     no_ut_min_hits [11]        (4) SciFi hits of an extension without UT hits
     no_ut_pvalue [0.01]        (4) … and its p-value cut
