@@ -63,8 +63,10 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
 4. **UT confirmation and final fit**, candidates best first: the UT hits are searched
    again with the SciFi q/p (± its σ) as prior, in windows now set by the scattering at
    that momentum (``confirm_window_sigmas``, ≥ ``ut_confirm_min_hits``); a final KF at the
-   fitted q/p over the UT and SciFi hits (hits beyond ``window_sigmas`` are dropped) gives
-   χ², ndf = hits − 1, q/p and its variance. Accepted if ≥ ``scifi_min_hits`` SciFi hits
+   fitted q/p over the UT and SciFi hits (hits beyond ``window_sigmas`` are dropped), then
+   the UT outlier check (`outliers`: each UT hit against the smoothed VELO + SciFi + other
+   UT track without it; outliers replaced or dropped, hits with an ambiguous neighbour
+   dropped, refit) gives χ², ndf = hits − 1, q/p and its variance. Accepted if ≥ ``scifi_min_hits`` SciFi hits
    with the station requirement and p-value ≥ ``pvalue``; without UT hits (also tried when
    the fit with them fails) ≥ ``no_ut_min_hits`` and p-value ≥ ``no_ut_pvalue`` (the
    VELO–SciFi match alone must convince: most ghosts had no UT hit). The best accepted
@@ -107,7 +109,8 @@ The stages live in modules of this package: `options` (options and status codes)
 `prepare` (layout, sorted hits, cut tables), `records` (the kernels' NamedTuples),
 `kalman` (the filter pieces and the fit through fixed hits), `search` (the combinatorial
 KF), `hough` and `lines` (the q/p scan, its clusters and their line and stereo tests),
-`scifi` (steps 2–3), `ut` (steps 1 and 4) and `kernel` (the two passes, step 6).
+`scifi` (steps 2–3), `ut` (steps 1 and 4), `outliers` (the UT outlier check of step 4)
+and `kernel` (the two passes, step 6).
 """
 
 from __future__ import annotations
@@ -157,7 +160,10 @@ class ForwardTracks(CsrTracks):
     none); chi2/ndf of the extension fit (ndf = hits − 1, the VELO state as prior);
     status: STATUS_* (STATUS_NAMES); below_table_p_min: |q/p| > 1/p_min of the
     UT→SciFi table (the parametrized fit returns status 4 there); from_scan: the
-    extension was found by the second pass's full-range scan (step 6), not from a UT start.
+    extension was found by the second pass's full-range scan (step 6), not from a UT start;
+    ut_chi2 (n, UT layers): the χ² of each UT hit of the extension against the track of
+    the VELO, the SciFi and the other UT hits (step 4, `pkf.seeding.forward.outliers`; NaN
+    where the layer has no hit).
     """
 
     offsets: np.ndarray
@@ -171,6 +177,7 @@ class ForwardTracks(CsrTracks):
     status: np.ndarray
     below_table_p_min: np.ndarray
     from_scan: np.ndarray
+    ut_chi2: np.ndarray
 
     @property
     def found(self) -> np.ndarray:
@@ -178,11 +185,12 @@ class ForwardTracks(CsrTracks):
         return (self.status == STATUS_OK) | (self.status == STATUS_NO_UT)
 
 
-def _new_output(n: int, n_fwd: int) -> Output:
+def _new_output(n: int, n_fwd: int, n_ut: int) -> Output:
     return Output(hits=np.full((n, n_fwd), -1, dtype=np.int64), q=np.full(n, np.nan), qvar=np.full(n, np.nan),
                   chi2=np.full(n, np.nan), ndf=np.zeros(n, dtype=np.int64),
                   status=np.full(n, STATUS_NOT_FOUND, dtype=np.int64), n_ut=np.zeros(n, dtype=np.int64),
-                  n_scifi=np.zeros(n, dtype=np.int64), from_scan=np.zeros(n, dtype=np.bool_))
+                  n_scifi=np.zeros(n, dtype=np.int64), from_scan=np.zeros(n, dtype=np.bool_),
+                  ut_chi2=np.full((n, n_ut), np.nan))
 
 
 def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
@@ -206,7 +214,7 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext,
                    options)
     n = prep.n_tracks
-    out = _new_output(n, prep.lay.layer.size)
+    out = _new_output(n, prep.lay.layer.size, prep.lay.n_ut)
     if n and prep.n_events:
         cfg = prep.cfg
         tr = Transport(ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)),
@@ -222,5 +230,5 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     return ForwardTracks(
         offsets=offsets, hit_rows=hit_rows.astype(np.int64), n_ut=out.n_ut, n_scifi=out.n_scifi,
         qop=out.q, qop_var=out.qvar, chi2=out.chi2, ndf=out.ndf, status=out.status,
-        below_table_p_min=np.abs(out.q) > 1.0 / prep.p_table, from_scan=out.from_scan,
+        below_table_p_min=np.abs(out.q) > 1.0 / prep.p_table, from_scan=out.from_scan, ut_chi2=out.ut_chi2,
     )

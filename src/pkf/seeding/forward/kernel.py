@@ -42,6 +42,7 @@ from pkf.seeding.forward.records import (
     Ranked,
     Reference,
     Scan,
+    Smoother,
     Start,
     Track,
     UtCandidates,
@@ -85,6 +86,13 @@ def _scan(n_fwd: int, n_sf: int, n_x: int, max_nodes_q: int, max_entries: int, m
                 mask_pop=np.zeros(1 << n_x, dtype=np.int64))
 
 
+def _smoother(n_ut: int) -> Smoother:
+    return Smoother(x=np.zeros(5), C=np.zeros((5, 5)), A=np.zeros((5, 5)), inv=np.zeros((5, 5)),
+                    m1=np.zeros((5, 5)), m2=np.zeros((5, 5)), chol=np.zeros((5, 5)), vec=np.zeros(10),
+                    dx=np.zeros(5), x_ut=np.zeros((n_ut, 5)), C_ut=np.zeros((n_ut, 5, 5)),
+                    chi2=np.full(n_ut, np.nan))
+
+
 def new_work(lay, cfg, max_entries: int, max_bins: int) -> Work:
     """Scratch of one kernel call (reused by every track)."""
     n_fwd = lay.layer.size
@@ -101,7 +109,7 @@ def new_work(lay, cfg, max_entries: int, max_bins: int) -> Work:
                 leaf_c=Leaf(path, np.zeros(5), np.zeros((5, 5))),
                 scan=scan,
                 top_none=_ranked(0, n_fwd), cand=_ranked(int(iopt[I_MAX_CLUSTERS]), n_fwd, -1),
-                best_key=np.zeros(1))
+                best_key=np.zeros(1), smooth=_smoother(lay.n_ut))
 
 
 def new_pass_work(n_fwd: int, n_ut: int, n_ut_candidates: int, n_tracks: int, n_hits: int) -> PassWork:

@@ -268,10 +268,32 @@ class Scan(NamedTuple):
     mask_pop: np.ndarray
 
 
+class Smoother(NamedTuple):
+    """Scratch of the UT outlier check (`outliers`): the smoothed deviation x (5) and
+    covariance C (5, 5) of the current layer, the smoother gain A, the inverse of a
+    predicted covariance, two products, Cholesky scratch (5, 5) and (10), a deviation
+    (5), per UT layer the smoothed x_ut (n_ut, 5) and C_ut (n_ut, 5, 5) and the χ² of its
+    hit against the rest of the track (n_ut; NaN: no hit)."""
+
+    x: np.ndarray
+    C: np.ndarray
+    A: np.ndarray
+    inv: np.ndarray
+    m1: np.ndarray
+    m2: np.ndarray
+    chol: np.ndarray
+    vec: np.ndarray
+    dx: np.ndarray
+    x_ut: np.ndarray
+    C_ut: np.ndarray
+    chi2: np.ndarray
+
+
 class Work(NamedTuple):
     """All scratch of one kernel call (`kernel.workspace`), reused by every track: the
     filter, two leaves sharing one path (b: searches and fits, c: the UT side), the scan,
-    an empty Ranked (no leaves collected), the SciFi candidates and the best key so far."""
+    an empty Ranked (no leaves collected), the SciFi candidates, the best key so far and
+    the scratch of the UT outlier check."""
 
     filt: Filter
     leaf_b: Leaf
@@ -280,6 +302,7 @@ class Work(NamedTuple):
     top_none: Ranked
     cand: Ranked
     best_key: np.ndarray
+    smooth: Smoother
 
 
 class Track(NamedTuple):
@@ -294,7 +317,8 @@ class Track(NamedTuple):
 class Output(NamedTuple):
     """Per track: hits (n, n_fwd) sorted-hit index per forward layer (−1 none), q/p
     [1/MeV] and its variance, χ², ndf, status (STATUS_*), UT and SciFi hit counts, found
-    by the second pass's scan."""
+    by the second pass's scan, and ut_chi2 (n, n_ut): the χ² of each UT hit against the
+    rest of the extension (`outliers`; NaN: no hit or not checked)."""
 
     hits: np.ndarray
     q: np.ndarray
@@ -305,6 +329,7 @@ class Output(NamedTuple):
     n_ut: np.ndarray
     n_scifi: np.ndarray
     from_scan: np.ndarray
+    ut_chi2: np.ndarray
 
 
 class UtCandidates(NamedTuple):

@@ -36,6 +36,7 @@ from pkf.seeding.forward.options import (
     STATUS_NO_UT,
     STATUS_OK,
 )
+from pkf.seeding.forward.outliers import clean_ut_hits
 from pkf.seeding.forward.records import MODE_OFF, MODE_SEARCH, SearchRules
 from pkf.seeding.forward.search import search
 from pkf.seeding.forward_steps import TRANSPORT_FAILED
@@ -259,15 +260,17 @@ def _accept(lay, cfg, w, t, chi_f, out):
     out.n_ut[t] = n_u
     out.n_scifi[t] = n_s
     out.status[t] = STATUS_OK if n_u > 0 else STATUS_NO_UT
+    for j in range(n_ut):
+        out.ut_chi2[t, j] = w.smooth.chi2[j]
     return True
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
 def finalize(tr, lay, hits, cfg, w, track, c, ut_hits, use_ut_hits, out):
     """Step 4 for SciFi candidate c of w.cand: UT confirmation with its q/p as prior, then
-    the final fit over the UT and SciFi hits at that q/p; if it fails its cuts, once more
-    without UT hits. Returns True if accepted (the output of track.t is written if it
-    ranks before the best so far)."""
+    the final fit over the UT and SciFi hits at that q/p with the UT outlier check
+    (`outliers.clean_ut_hits`); if it fails its cuts, once more without UT hits. Returns
+    True if accepted (the output of track.t is written if it ranks before the best so far)."""
     opt = cfg.opt
     filt = w.filt
     n_ut = lay.n_ut
@@ -288,6 +291,11 @@ def finalize(tr, lay, hits, cfg, w, track, c, ut_hits, use_ut_hits, out):
         _zero_start(filt, q_best)
         velo_prior(opt, abs(q_best), opt[O_WEAK_QPRIOR], filt.P0)
         n_fit, chi_f = fit_fixed(0, n_fwd, filt, hits, lay, opt[O_NSIG], cfg.cuts.sf_prune, w.leaf_b)
+        for j in range(n_ut):
+            w.smooth.chi2[j] = math.nan
+        if attempt == 0 and n_fit >= 1:
+            n_fit, chi_f = clean_ut_hits(lay, hits, cfg, filt, w.leaf_b, w.smooth, n_fwd, opt[O_NSIG],
+                                         cfg.cuts.sf_prune, n_fit, chi_f)
         if n_fit >= 1 and _accept(lay, cfg, w, track.t, chi_f, out):
             return True
     return False
