@@ -464,6 +464,34 @@ def _width_shift(f, t):
     return 0.0
 
 
+#: A Gauss–Newton update that raises χ² by more than this fraction is halved (at most
+#: MAX_STEP_HALVINGS times): a line search along the Newton direction. Without it, on the
+#: real VELO-only tracks of 60 minbias events (ν = 7.6), 5.1 % ended with χ²/ndf > 5 and a
+#: few at 10³–10⁵, status ok, where the Kalman fits of the same hits give ~1.
+STEP_HALVING_TOLERANCE = 1e-6
+MAX_STEP_HALVINGS = 8
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def _halve_step(f, t, z, n, plane_lo, n_slots, n_meas, hx, hy, m, sigma, active):
+    """Take back half of the last update (d_alpha, d_theta halved), propagate again;
+    returns (status, χ² of the trajectory)."""
+    for i in range(5):
+        f.d_alpha[i] *= 0.5
+        f.alpha[i] -= f.d_alpha[i]
+    for p in range(n_slots):
+        f.d_theta[p, 0] *= 0.5
+        f.d_theta[p, 1] *= 0.5
+        f.theta[p, 0] -= f.d_theta[p, 0]
+        f.theta[p, 1] -= f.d_theta[p, 1]
+    status = _propagate(f.ext, f.alpha, f.theta, z, n, plane_lo, f.node_state, f.jac, f.g, f.theta0, f.step_plane,
+                        f.seg, f.tmp, f.cursor, f.stages, _width_shift(f, t))
+    if status != STATUS_OK:
+        return status, np.nan
+    chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
+    return status, chi2 + f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+
+
 @nb.njit(cache=True, **NO_REFCOUNT)
 def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
     """Gauss–Newton from the current (α, θ) (module docstring): node states of the final
@@ -502,6 +530,14 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
             n_slots = f.step_plane[n]
         new_chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
         new_chi2 += f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+        halvings = 0
+        while new_chi2 > chi2 * (1.0 + STEP_HALVING_TOLERANCE) and halvings < MAX_STEP_HALVINGS:
+            status, new_chi2 = _halve_step(f, t, z, n, plane_lo, n_slots, n_meas, hx, hy, m, sigma, active)
+            if status != STATUS_OK:
+                break
+            halvings += 1
+        if status != STATUS_OK:
+            break
         if abs(new_chi2 - chi2) <= f.relative_chi2_change * new_chi2:
             converged = True
         chi2 = new_chi2
