@@ -184,6 +184,12 @@ class ForwardTracks(CsrTracks):
         """Tracks extended into the SciFi (status ok or no UT)."""
         return (self.status == STATUS_OK) | (self.status == STATUS_NO_UT)
 
+    @property
+    def upstream(self) -> np.ndarray:
+        """Tracks without a SciFi extension that keep their best UT candidate (step 5): upstream
+        tracks, VELO + ≥ ``ut_min_hits`` UT hits, q/p from the VELO→UT kink."""
+        return (self.status == STATUS_NO_SCIFI) & (self.n_ut > 0)
+
 
 def _new_output(n: int, n_fwd: int, n_ut: int) -> Output:
     return Output(hits=np.full((n, n_fwd), -1, dtype=np.int64), q=np.full(n, np.nan), qvar=np.full(n, np.nan),
