@@ -4,8 +4,8 @@ VELO tracks from hit triplets (`pkf.seeding.velo_search`), extended through the 
 the magnet into the SciFi with the parametrized extrapolations
 (`pkf.seeding.forward`). Every VELO track becomes a candidate: with its UT and SciFi
 hits when the extension found them (a long track), with its UT hits when only those were
-found (an upstream track: no SciFi extension, ≥ 3 UT hits, q/p from the VELO→UT kink),
-else as a VELO track.
+found (an upstream track: no SciFi extension, ≥ 4 UT hits that pass the UT outlier check,
+q/p from the VELO→UT kink), else as a VELO track.
 
 Occupancy and interrupts. Both searches open windows of fixed size around every seed,
 so their cost per hit grows with the hit density (lhcb-like minimum bias, CPU of one
