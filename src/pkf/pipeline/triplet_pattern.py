@@ -3,7 +3,9 @@
 VELO tracks from hit triplets (`pkf.seeding.velo_search`), extended through the UT and
 the magnet into the SciFi with the parametrized extrapolations
 (`pkf.seeding.forward`). Every VELO track becomes a candidate: with its UT and SciFi
-hits when the extension found them (a long track), else as a VELO track.
+hits when the extension found them (a long track), with its UT hits when only those were
+found (an upstream track: no SciFi extension, ≥ 4 UT hits that pass the UT outlier check,
+q/p from the VELO→UT kink), else as a VELO track.
 
 Occupancy and interrupts. Both searches open windows of fixed size around every seed,
 so their cost per hit grows with the hit density (lhcb-like minimum bias, CPU of one
@@ -72,9 +74,8 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
     forward = extend_velo_tracks(velo.event_id, state, velo.z, event_id, layer, u, sigma_u, geometry,
                                  forward_extrapolator)
     velo_track = np.repeat(np.arange(n_tracks), np.diff(velo.offsets))
-    found = forward.found
     fwd_track = forward.track_of_hit
-    keep = found[fwd_track]
+    keep = (forward.found | forward.upstream)[fwd_track]
     track = np.concatenate([velo_track, fwd_track[keep]])
     rows = np.concatenate([velo.hit_rows, forward.hit_rows[keep]])
     order = np.lexsort((rows, track))
@@ -91,9 +92,10 @@ def _pattern_estimate(velo, forward):
     """The state the pattern hands to the fit, per VELO track (every VELO track is a
     candidate, in this order): (x, y, tx, ty) of the VELO straight-line fit at its first
     hit (z) and, where the forward extension carried it into the SciFi, the extension's
-    q/p (at production) and variance; NaN q/p elsewhere (the hits of an extension that was
-    not accepted are not in the candidate)."""
-    found = forward.found
+    q/p (at production) and variance, for upstream tracks the q/p of the VELO→UT kink and
+    its variance; NaN q/p for VELO tracks (the hits of an extension that was not accepted
+    are not in the candidate)."""
+    found = forward.found | forward.upstream
     qop = np.where(found, forward.qop, np.nan)
     qop_var = np.where(found, forward.qop_var, np.nan)
     state = np.column_stack([velo.x, velo.y, velo.tx, velo.ty, qop])

@@ -73,7 +73,9 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    extension (χ² − miss_penalty·hits) is kept; the search ends at one with p-value ≥
    ``good_pvalue`` and ≥ 11 SciFi hits.
 5. Without an accepted extension the best UT candidate is returned as an upstream track
-   (STATUS_NO_SCIFI, q/p from the kink).
+   (STATUS_NO_SCIFI, q/p from the kink) after the UT outlier check of step 4 against its
+   VELO + UT fit (`ut.clean_upstream`); with fewer than 4 UT hits left
+   (`kernel.UPSTREAM_MIN_UT_HITS`) it stays a VELO track (STATUS_NO_SCIFI, n_ut = 0).
 6. **Two passes; good extensions take their hits.** The first pass runs steps 1–4 from
    the UT starts for every track of the batch, in order. An extension that ends its
    search (p-value ≥ ``good_pvalue``, ≥ 11 SciFi hits) takes its UT and SciFi hits: later
@@ -183,6 +185,12 @@ class ForwardTracks(CsrTracks):
     def found(self) -> np.ndarray:
         """Tracks extended into the SciFi (status ok or no UT)."""
         return (self.status == STATUS_OK) | (self.status == STATUS_NO_UT)
+
+    @property
+    def upstream(self) -> np.ndarray:
+        """Tracks without a SciFi extension that keep their best UT candidate (step 5): upstream
+        tracks, VELO + ≥ 4 UT hits that passed the UT outlier check, q/p from the VELO→UT kink."""
+        return (self.status == STATUS_NO_SCIFI) & (self.n_ut > 0)
 
 
 def _new_output(n: int, n_fwd: int, n_ut: int) -> Output:

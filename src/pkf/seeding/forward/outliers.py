@@ -131,6 +131,13 @@ def smooth_ut_chi2(filt, lay, hits, path, n_fwd, sm):
         sm.x[i] = ws.post_x[last, i]
         for k in range(5):
             sm.C[i, k] = ws.post_P[last, i, k]
+    if last < n_ut:  # a UT-only fit (upstream track): the last UT layer's smoothed state is the filtered one
+        for i in range(5):
+            sm.x_ut[last, i] = sm.x[i]
+            for k in range(5):
+                sm.C_ut[last, i, k] = sm.C[i, k]
+        if path[last] >= 0:
+            sm.chi2[last], _, _ = _hit_chi2(filt.ref.s, lay, hits, sm.x, sm.C, last, path[last])
     for d in range(last - 1, -1, -1):
         if not _smooth_step(ws, filt.ref.F, d, sm):
             for j in range(n_ut):
