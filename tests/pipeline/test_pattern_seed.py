@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pkf.fit.candidates import Candidates
-from pkf.fit.seed import SEED_QOP_FRACTION, TRACK_LONG, TRACK_VELO
+from pkf.fit.seed import SEED_QOP_FRACTION, TRACK_LONG, TRACK_UPSTREAM, TRACK_VELO
 from pkf.fit.tracks import TrackBatch, seed_batch
 from pkf.geometry import load_geometry
 from pkf.params.parameter_set import load_parameters
@@ -66,10 +66,13 @@ def test_triplet_candidates_carry_the_forward_estimate(sample):
     # the VELO state at the track's first hit, for every track
     assert np.all(np.isfinite(candidates.state[:, :4]))
     np.testing.assert_allclose(candidates.state_z, batch.z[batch.offsets[:-1]])
-    # q/p and its variance exactly for the tracks the extension carried into the SciFi
+    # q/p and its variance exactly for the tracks the extension carried into the SciFi, and
+    # for upstream tracks (the VELO→UT kink)
     has_qop = np.isfinite(candidates.state[:, 4])
-    np.testing.assert_array_equal(has_qop, is_long)
-    assert np.all(candidates.qop_var[is_long] > 0) and np.all(np.isnan(candidates.qop_var[~is_long]))
+    measured = is_long | (batch.track_type == TRACK_UPSTREAM)
+    assert (batch.track_type == TRACK_UPSTREAM).sum() > 10
+    np.testing.assert_array_equal(has_qop, measured)
+    assert np.all(candidates.qop_var[measured] > 0) and np.all(np.isnan(candidates.qop_var[~measured]))
     # ... and it is the particle's q/p to about its stated error
     truth = _track_truth_qop(candidates, hit_qop, particle)
     real = is_long & np.isfinite(truth)
