@@ -146,17 +146,11 @@ def symmetrise(a):
 
 
 @nb.njit(cache=True, inline="always")
-def invert_spd(a, out, work, vec):
-    """out = a⁻¹ for a symmetric positive-definite 5×5 matrix.
-
-    The matrix is first equilibrated, a′ = D·a·D with D = diag(1/√a_ii), so that the
-    result is accurate however differently the parameters are scaled (mm, slopes,
-    1/MeV), then inverted by Cholesky a′ = L·Lᵀ, and a⁻¹ = D·a′⁻¹·D. work (5×5) and
-    vec (10) are scratch. Returns False (out undefined) if a is not positive definite.
-    """
+def equilibrated_cholesky(a, work, scale):
+    """Lower Cholesky factor L (in work, 5×5) of a′ = D·a·D, D = diag(scale), scale[i] =
+    1/√a_ii written into scale (5): the common first half of `invert_spd` and
+    `invert_spd_triangular`. Returns False if a is not positive definite."""
     n = 5
-    scale = vec[5:10]
-    col = vec[0:5]
     for i in range(n):
         if not a[i, i] > 0.0:
             return False
@@ -174,6 +168,23 @@ def invert_spd(a, out, work, vec):
             for k in range(j):
                 t -= work[i, k] * work[j, k]
             work[i, j] = t / d
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def invert_spd(a, out, work, vec):
+    """out = a⁻¹ for a symmetric positive-definite 5×5 matrix.
+
+    The matrix is first equilibrated, a′ = D·a·D with D = diag(1/√a_ii), so that the
+    result is accurate however differently the parameters are scaled (mm, slopes,
+    1/MeV), then inverted by Cholesky a′ = L·Lᵀ, and a⁻¹ = D·a′⁻¹·D. work (5×5) and
+    vec (10) are scratch. Returns False (out undefined) if a is not positive definite.
+    """
+    n = 5
+    scale = vec[5:10]
+    col = vec[0:5]
+    if not equilibrated_cholesky(a, work, scale):
+        return False
     for c in range(n):
         # column c of a′⁻¹: solve L·y = e_c, then Lᵀ·x = y
         for i in range(n):
@@ -203,23 +214,8 @@ def invert_spd_triangular(a, out, work, vec):
     """
     n = 5
     scale = vec[0:5]
-    for i in range(n):
-        if not a[i, i] > 0.0:
-            return False
-        scale[i] = 1.0 / math.sqrt(a[i, i])
-    for j in range(n):
-        s = a[j, j] * scale[j] * scale[j]
-        for k in range(j):
-            s -= work[j, k] * work[j, k]
-        if not s > 0.0:
-            return False
-        d = math.sqrt(s)
-        work[j, j] = d
-        for i in range(j + 1, n):
-            t = a[i, j] * scale[i] * scale[j]
-            for k in range(j):
-                t -= work[i, k] * work[j, k]
-            work[i, j] = t / d
+    if not equilibrated_cholesky(a, work, scale):
+        return False
     # L⁻¹ in place, last column first; within a column from the bottom, so that the
     # entries of L still needed (rows above) are not yet overwritten
     for j in range(n - 1, -1, -1):

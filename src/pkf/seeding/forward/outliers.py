@@ -116,6 +116,18 @@ def _hit_chi2(ref_s, lay, hits, x, C, j, h):
     return (r * r / den if den > 0.0 else math.inf), r, hch
 
 
+@nb.njit(cache=True, inline="always")
+def _store_ut_layer(sm, filt, lay, hits, path, d):
+    """Keep the smoothed state of UT layer d (sm.x_ut, sm.C_ut) and the χ² of its hit, if
+    any, against the rest of the track (sm.chi2)."""
+    for i in range(5):
+        sm.x_ut[d, i] = sm.x[i]
+        for k in range(5):
+            sm.C_ut[d, i, k] = sm.C[i, k]
+    if path[d] >= 0:
+        sm.chi2[d], _, _ = _hit_chi2(filt.ref.s, lay, hits, sm.x, sm.C, d, path[d])
+
+
 @nb.njit(cache=True, **NO_REFCOUNT)
 def smooth_ut_chi2(filt, lay, hits, path, n_fwd, sm):
     """Smooth the last `fit_fixed` over layers 0 … n_fwd−1 back to the UT layers (states
@@ -132,24 +144,14 @@ def smooth_ut_chi2(filt, lay, hits, path, n_fwd, sm):
         for k in range(5):
             sm.C[i, k] = ws.post_P[last, i, k]
     if last < n_ut:  # a UT-only fit (upstream track): the last UT layer's smoothed state is the filtered one
-        for i in range(5):
-            sm.x_ut[last, i] = sm.x[i]
-            for k in range(5):
-                sm.C_ut[last, i, k] = sm.C[i, k]
-        if path[last] >= 0:
-            sm.chi2[last], _, _ = _hit_chi2(filt.ref.s, lay, hits, sm.x, sm.C, last, path[last])
+        _store_ut_layer(sm, filt, lay, hits, path, last)
     for d in range(last - 1, -1, -1):
         if not _smooth_step(ws, filt.ref.F, d, sm):
             for j in range(n_ut):
                 sm.chi2[j] = math.nan
             return False
         if d < n_ut:
-            for i in range(5):
-                sm.x_ut[d, i] = sm.x[i]
-                for k in range(5):
-                    sm.C_ut[d, i, k] = sm.C[i, k]
-            if path[d] >= 0:
-                sm.chi2[d], _, _ = _hit_chi2(filt.ref.s, lay, hits, sm.x, sm.C, d, path[d])
+            _store_ut_layer(sm, filt, lay, hits, path, d)
     return True
 
 
