@@ -1,6 +1,8 @@
 """The Gaussian-sum filter (issue 7): equals the Kalman fit without bremsstrahlung,
 improves electron fits where the detector can see the radiation, calibrated posteriors."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from fit_helpers import TruthSample
@@ -401,3 +403,69 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     width = np.sqrt(cov[sel, 4, 4] / covs[sel, 4, 4])
     assert 0.95 <= np.median(width) <= 1.05, np.median(width)
     assert np.all(np.abs(state[sel, 4] - seeds[sel, 4]) < 0.2 * np.sqrt(covs[sel, 4, 4]))
+
+
+def test_kl_reduction_reaches_max_components_when_distances_are_nan():
+    """A mixture whose q/p variances are NaN has no comparable KL distance: the reduction
+    used to 'merge' each component with index −1 and return all n > max_n components, and
+    the next plane's Bethe–Heitler convolution then wrote n·K components past the scratch
+    arrays (heap corruption: 'double free or corruption' on minbias events)."""
+    n = 6
+    w = np.full(n, 1.0 / n)
+    mu = np.zeros((n, 5))
+    mu[:, 4] = np.linspace(1e-4, 2e-4, n)
+    cov = np.tile(np.eye(5), (n, 1, 1))
+    cov[:, 4, 4] = np.nan
+    alive = np.zeros(n + 1, dtype=np.bool_)
+    count = _reduce(w, mu, cov, n, 3, np.zeros(n + 1, dtype=np.int64), np.zeros(n + 1), alive)
+    assert count == 3
+    assert not alive[n]  # nothing written past the n components (index −1 of the scratch)
+    assert np.isclose(w[:count].sum(), 1.0)
+
+
+def _backward_from_scifi_to_velo(share_jacobians):
+    """Two components at the first SciFi layer transported back to the VELO end: the
+    leading one (weight 0.7) at 25 MeV curls out of the z-parametrised envelope in the
+    magnet, the other (5 GeV) does not."""
+    from pkf.fit.gsf import _transport
+
+    ctx = gsf_extrapolator(load_geometry("lhcb-like"), share_jacobians=share_jacobians)
+    w = np.array([0.7, 0.3])
+    mu = np.array([[-3.3, 4.8, -0.03, 0.036, 1.0 / 25.0], [-3.3, 4.8, -0.03, 0.036, 1.0 / 5000.0]])
+    cov = np.tile(np.diag([1e-2, 1e-2, 1e-6, 1e-6, 1e-10]), (2, 1, 1))
+    alive = _transport(ctx, w, mu, cov, 2, 7826.0, 737.5, np.zeros((5, 5)), np.zeros((5, 5)), np.zeros((5, 5)))
+    return alive, w, mu, cov
+
+
+def test_a_leading_component_that_leaves_the_envelope_shares_no_jacobian():
+    """With shared Jacobians the leading component's Jacobian transports every covariance;
+    when that component curls out of the envelope its Jacobian is NaN and every covariance
+    became NaN while the other components stayed 'alive' (found on minbias event 6xx: a
+    2.2 GeV pion's backward GSF pass through the magnet). Now each component takes its own
+    Jacobian then: the survivor's covariance is what the per-component transport gives."""
+    alive, w, mu, cov = _backward_from_scifi_to_velo(True)
+    alive_own, w_own, mu_own, cov_own = _backward_from_scifi_to_velo(False)
+    assert alive == alive_own == 1
+    assert w[0] == 0.0 and w[1] == 0.3
+    assert np.all(np.isfinite(cov[1])) and np.all(np.linalg.eigvalsh(cov[1]) > 0.0)
+    np.testing.assert_array_equal(mu[1], mu_own[1])
+    np.testing.assert_array_equal(cov[1], cov_own[1])
+
+
+def test_the_minbias_track_that_corrupted_the_heap_is_fitted():
+    """The track of the heap corruption above (lhcb-like minbias ν = 7.6, seed 77, event
+    650–699; VELO + SciFi, no UT, p = 2.2 GeV): fitted, finite, positive variances."""
+    from pkf.fit.candidates import Candidates
+    from pkf.fit.tracks import TrackBatch
+
+    data = np.load(Path(__file__).parent / "data" / "gsf_lead_leaves_envelope.npz")
+    geometry = load_geometry("lhcb-like")
+    rows = np.arange(data["layer"].size)
+    candidates = Candidates.from_hit_lists(np.zeros(rows.size), np.zeros(rows.size), rows)
+    batch = TrackBatch.from_candidates(geometry, candidates, data["layer"], data["m"][:, 0], data["m"][:, 1],
+                                       data["sigma"][:, 0], data["sigma"][:, 1])
+    result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), data["seed"][None],
+                           data["seed_cov"][None])
+    assert list(result.status) == [0]
+    assert np.all(np.isfinite(result.node_state)) and np.all(np.einsum("nii->ni", result.node_cov) > 0.0)
+    assert abs(1.0 / result.node_state[0, 4]) > 1000.0  # not the sub-GeV component that curled away

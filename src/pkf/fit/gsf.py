@@ -331,6 +331,11 @@ def _reduce(w, mu, cov, n, max_n, nearest, nearest_d, alive):
             if alive[k] and (i < 0 or nearest_d[k] < nearest_d[i]):
                 i = k
         j = nearest[i]
+        if j < 0:  # no comparable distance (a NaN variance): merge with any other, never stop short
+            for k in range(n):
+                if alive[k] and k != i:
+                    j = k
+                    break
         _merge_into(w, mu, cov, i, j)
         alive[j] = False
         count -= 1
@@ -570,16 +575,22 @@ def widen_qop_variance(cov, var):
 @nb.njit(cache=True, error_model="numpy")
 def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
-    (the leading component's if ctx.share_jacobians). A component that fails (leaves the
-    z-parametrised envelope) gets weight 0. Returns the number of surviving components."""
+    (the leading component's if ctx.share_jacobians and the leading one stays in the
+    envelope; else each its own). A component that fails (leaves the z-parametrised
+    envelope, or a variance overflows) gets weight 0. Returns the number of surviving
+    components."""
     if z_to == z_from:
         return n
     ref = ctx.ref
     lead = _largest(w, n)
     alive = 0
-    if ctx.share_jacobians:
+    shared = ctx.share_jacobians
+    if shared:
         new = rk4_propagate_jacobian(mu[lead], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
                                      ref.field_grid, seg)
+        # a lead that leaves the envelope has no Jacobian to share: each component its own
+        shared = in_envelope(new) and _finite55(seg)
+    if shared:
         for c in range(n):
             if c == lead:
                 for i in range(4):
@@ -603,11 +614,30 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
             sandwich(seg, cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     for c in range(n):
-        if in_envelope(mu[c]):
+        if in_envelope(mu[c]) and _finite_diagonal(cov[c]):
             alive += 1
         else:
             w[c] = 0.0
     return alive
+
+
+@nb.njit(cache=True, inline="always")
+def _finite55(a):
+    """Whether every element of the 5×5 matrix a is finite."""
+    for i in range(5):
+        for j in range(5):
+            if not math.isfinite(a[i, j]):
+                return False
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def _finite_diagonal(cov):
+    """Whether the variances of the 5×5 covariance cov are finite."""
+    for i in range(5):
+        if not math.isfinite(cov[i, i]):
+            return False
+    return True
 
 
 @nb.njit(cache=True, error_model="numpy")
