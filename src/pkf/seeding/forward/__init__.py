@@ -72,10 +72,14 @@ Python loop per track or hit; hits are looked up by bisection in u-sorted arrays
    VELO–SciFi match alone must convince: most ghosts had no UT hit). The best accepted
    extension (χ² − miss_penalty·hits) is kept; the search ends at one with p-value ≥
    ``good_pvalue`` and ≥ 11 SciFi hits.
-5. Without an accepted extension the best UT candidate is returned as an upstream track
-   (STATUS_NO_SCIFI, q/p from the kink) after the UT outlier check of step 4 against its
-   VELO + UT fit (`ut.clean_upstream`); with fewer than 4 UT hits left
-   (`kernel.UPSTREAM_MIN_UT_HITS`) it stays a VELO track (STATUS_NO_SCIFI, n_ut = 0).
+5. **Upstream tracks** (a third pass, `upstream`, after step 6): every long track with UT
+   hits takes them; a track without an extension gets the UT search of step 1 again on the
+   hits left, and its best UT candidate is returned as an upstream track (STATUS_NO_SCIFI,
+   q/p from the kink) after the UT outlier check of step 4 against its VELO + UT fit
+   (`ut.clean_upstream`, neighbour cut ``upstream_ambiguous_chi2``); with fewer than 4 UT
+   hits left (`upstream.UPSTREAM_MIN_UT_HITS`) or a p-value below ``upstream_pvalue`` it
+   stays a VELO track (STATUS_NO_SCIFI, n_ut = 0). A UT hit held by two upstream tracks
+   goes to the one with the lower χ²; the other searches again without it.
 6. **Two passes; good extensions take their hits.** The first pass runs steps 1–4 from
    the UT starts for every track of the batch, in order. An extension that ends its
    search (p-value ≥ ``good_pvalue``, ≥ 11 SciFi hits) takes its UT and SciFi hits: later
@@ -111,8 +115,8 @@ The stages live in modules of this package: `options` (options and status codes)
 `prepare` (layout, sorted hits, cut tables), `records` (the kernels' NamedTuples),
 `kalman` (the filter pieces and the fit through fixed hits), `search` (the combinatorial
 KF), `hough` and `lines` (the q/p scan, its clusters and their line and stereo tests),
-`scifi` (steps 2–3), `ut` (steps 1 and 4), `outliers` (the UT outlier check of step 4)
-and `kernel` (the two passes, step 6).
+`scifi` (steps 2–3), `ut` (steps 1 and 4), `outliers` (the UT outlier check of step 4),
+`kernel` (the two passes, step 6) and `upstream` (the third pass, step 5).
 """
 
 from __future__ import annotations
@@ -138,6 +142,7 @@ from pkf.seeding.forward.options import (
 )
 from pkf.seeding.forward.prepare import prepare
 from pkf.seeding.forward.records import Inputs, Output, Transport
+from pkf.seeding.forward.upstream import upstream_pass
 
 __all__ = [
     "STATUS_INVALID",
@@ -230,7 +235,9 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
         lay = prep.lay
         pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
         inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
-        extend_kernel(tr, lay, cfg, new_work(lay, cfg, prep.max_entries, prep.max_bins), pw, inputs, out)
+        w = new_work(lay, cfg, prep.max_entries, prep.max_bins)
+        extend_kernel(tr, lay, cfg, w, pw, inputs, out)
+        upstream_pass(tr, lay, cfg, w, pw, inputs, out, np.full(prep.hit_u.size, -1, dtype=np.int64))
     found = out.hits >= 0
     counts = found.sum(axis=1)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

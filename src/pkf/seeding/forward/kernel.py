@@ -21,11 +21,9 @@ from pkf.seeding.forward.options import (
     I_MAX_CLUSTERS,
     I_STATION_X,
     I_TAKE_HITS,
-    I_UT_MIN,
     O_NODE_DW,
     O_QMAX,
     STATUS_INVALID,
-    STATUS_NO_SCIFI,
     STATUS_NOT_FOUND,
 )
 from pkf.seeding.forward.records import (
@@ -50,13 +48,7 @@ from pkf.seeding.forward.records import (
     Work,
 )
 from pkf.seeding.forward.scifi import scifi_search
-from pkf.seeding.forward.ut import clean_upstream, finalize, ut_candidates, ut_start
-
-
-UPSTREAM_MIN_UT_HITS = 4
-"""UT hits an upstream track needs after the UT outlier check (`_upstream`). Measured on 60
-minimum-bias events at ν = 7.6 (issue 15): after the check, upstream candidates with 3 UT
-hits carry a UT hit of another particle in 39 % of cases, those with 4 in 10.5 %."""
+from pkf.seeding.forward.ut import finalize, ut_candidates, ut_start
 
 
 def _ranked(k: int, n_fwd: int, fill: int = 0) -> Ranked:
@@ -169,28 +161,6 @@ def _restore(kept, t, start, ut_best, utc):
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
-def _upstream(tr, lay, hits, cfg, w, track, out, utc, ut_best):
-    """Track t as an upstream track: the best UT candidate's hits after the UT outlier check
-    (`ut.clean_upstream`), q/p from the VELO→UT kink; with fewer than ``ut_min_hits`` or
-    `UPSTREAM_MIN_UT_HITS` UT hits left it stays a VELO track (STATUS_NO_SCIFI, no UT hits, n_ut = 0)."""
-    n_ut = lay.n_ut
-    t = track.t
-    out.status[t] = STATUS_NO_SCIFI
-    n_h, chi_c, q_c, v_c = clean_upstream(tr, lay, hits, cfg, w, track, utc.q[0], utc.var[0], ut_best)
-    if n_h < max(cfg.iopt[I_UT_MIN], UPSTREAM_MIN_UT_HITS):
-        return
-    path = w.leaf_c.path
-    out.q[t] = q_c
-    out.qvar[t] = v_c
-    out.chi2[t] = chi_c
-    out.ndf[t] = n_h - 1
-    for j in range(n_ut):
-        out.hits[t, j] = path[j]
-        out.ut_chi2[t, j] = w.smooth.chi2[j]
-    out.n_ut[t] = n_h
-
-
-@nb.njit(cache=True, **NO_REFCOUNT)
 def _extend(tr, lay, hits, cfg, w, pw, track, n_utc, second_pass, out):
     """Steps 2–4 from each UT candidate (its fitted state, its q/p range, its hits in the
     KF), best first; in the second pass from the VELO prior alone over the whole q/p
@@ -282,5 +252,3 @@ def extend_kernel(tr, lay, cfg, w, pw, inp, out):
                 _keep(kept, t, start, ut_best, utc, n_utc)
             continue
         out.from_scan[t] = final_ok
-        if not final_ok and n_utc > 0:
-            _upstream(tr, lay, hits, cfg, w, track, out, utc, ut_best)

@@ -53,7 +53,7 @@ import numba as nb
 from pkf.jit import NO_REFCOUNT
 from pkf.physics.linalg import invert_spd
 from pkf.seeding.forward.kalman import first_at_least, fit_fixed
-from pkf.seeding.forward.options import O_UT_AMBIGUOUS, O_UT_OUTLIER, O_UT_SWAP
+from pkf.seeding.forward.options import O_UT_OUTLIER, O_UT_SWAP
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
@@ -226,16 +226,15 @@ def _next_change(filt, lay, hits, sm, path, changed, cut, margin, ambiguous):
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
-def clean_ut_hits(lay, hits, cfg, filt, best, sm, n_fwd, nsig, prune, n_fit, chi_f):
+def clean_ut_hits(lay, hits, cfg, filt, best, sm, n_fwd, nsig, prune, n_fit, chi_f, ambiguous):
     """Check the UT hits of the fit just made (`fit_fixed(0, n_fwd, filt, hits, lay, nsig,
     prune, best)`, n_fit ≥ 1 hits with χ² chi_f, its hits in best.path) against the rest
-    of the track (module docstring, `_next_change`), refit after each change, until
-    nothing changes. sm.chi2: the χ² per UT
+    of the track (module docstring, `_next_change`; ambiguous: the neighbour cut of rule 3),
+    refit after each change, until nothing changes. sm.chi2: the χ² per UT
     layer of the final fit. Returns (hits, χ²) of the final fit (−1 hits if a refit
     failed its cuts)."""
     cut = cfg.opt[O_UT_OUTLIER]
     margin = cfg.opt[O_UT_SWAP]
-    ambiguous = cfg.opt[O_UT_AMBIGUOUS]
     n_ut = lay.n_ut
     path = best.path
     n_u = 0

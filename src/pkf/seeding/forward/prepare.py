@@ -211,7 +211,8 @@ def _config(options, p_table: float, n_fwd: int) -> Config:
     n_meas = n_fwd + 2
     cuts = Cuts(ut_prune=_chi2_table(1e-6, n_meas, 1) + 10.0, sf_prune=_chi2_table(1e-7, n_meas, 1) + 10.0,
                 final=_chi2_table(options.pvalue, n_meas, 1), no_ut=_chi2_table(options.no_ut_pvalue, n_meas, 1),
-                good=_chi2_table(options.good_pvalue, n_meas, 1), ut=_chi2_table(options.ut_pvalue, n_meas, 1))
+                good=_chi2_table(options.good_pvalue, n_meas, 1), ut=_chi2_table(options.ut_pvalue, n_meas, 1),
+                upstream=_chi2_table(options.upstream_pvalue, n_meas, 1))
     hough = hough_grid(options.hough_tol_abs, options.hough_tol_rel, 1.0 / options.p_min)
     return Config(fopt, iopt, cuts, hough)
 

@@ -65,7 +65,8 @@ class Hits(NamedTuple):
 
 class Cuts(NamedTuple):
     """χ² cuts per number of measurements (`prepare.chi2_table`): pruning of the UT and
-    SciFi searches, the final fit, the fit without UT hits, a good extension, a UT candidate."""
+    SciFi searches, the final fit, the fit without UT hits, a good extension, a UT candidate,
+    an upstream track after its UT outlier check."""
 
     ut_prune: np.ndarray
     sf_prune: np.ndarray
@@ -73,6 +74,7 @@ class Cuts(NamedTuple):
     no_ut: np.ndarray
     good: np.ndarray
     ut: np.ndarray
+    upstream: np.ndarray
 
 
 class Hough(NamedTuple):

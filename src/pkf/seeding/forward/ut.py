@@ -31,6 +31,8 @@ from pkf.seeding.forward.options import (
     O_NSIG,
     O_QMAX,
     O_UT_NSIG,
+    O_UPSTREAM_AMBIGUOUS,
+    O_UT_AMBIGUOUS,
     O_UT_QPRIOR,
     O_WEAK_QPRIOR,
     STATUS_NO_UT,
@@ -295,7 +297,7 @@ def finalize(tr, lay, hits, cfg, w, track, c, ut_hits, use_ut_hits, out):
             w.smooth.chi2[j] = math.nan
         if attempt == 0 and n_fit >= 1:
             n_fit, chi_f = clean_ut_hits(lay, hits, cfg, filt, w.leaf_b, w.smooth, n_fwd, opt[O_NSIG],
-                                         cfg.cuts.sf_prune, n_fit, chi_f)
+                                         cfg.cuts.sf_prune, n_fit, chi_f, opt[O_UT_AMBIGUOUS])
         if n_fit >= 1 and _accept(lay, cfg, w, track.t, chi_f, out):
             return True
     return False
@@ -307,7 +309,7 @@ def clean_upstream(tr, lay, hits, cfg, w, track, q_c, v_c, ut_hits):
     extension): the VELO prior + the UT hits ut_hits fitted around q_c (variance v_c, 1/MeV)
     as in `_refit_leaf`, then each UT hit against the rest of the track, the ambiguous
     neighbour rule included (a UT hit with another hit of its layer at χ² <
-    ``ut_ambiguous_chi2`` is dropped). Issue 15: 39 % of the upstream candidates of minimum
+    ``upstream_ambiguous_chi2`` is dropped). Issue 15: 39 % of the upstream candidates of minimum
     bias at ν = 7.6 carried a UT hit of another particle, nearly always next to the
     particle's own hit. Returns (UT hits, χ², q/p, variance) of the final fit, its hits in
     w.leaf_c.path; 0 hits if the transport or a refit failed."""
@@ -325,7 +327,7 @@ def clean_upstream(tr, lay, hits, cfg, w, track, q_c, v_c, ut_hits):
     if n_c < 1:
         return 0, math.inf, q_c, v_c
     n_c, chi_c = clean_ut_hits(lay, hits, cfg, filt, w.leaf_c, w.smooth, n_ut, opt[O_UT_NSIG],
-                               cfg.cuts.ut_prune, n_c, chi_c)
+                               cfg.cuts.ut_prune, n_c, chi_c, opt[O_UPSTREAM_AMBIGUOUS])
     if n_c < 1:
         return 0, math.inf, q_c, v_c
     return n_c, chi_c, filt.ref.s[n_ut - 1, 4] + w.leaf_c.x[4], w.leaf_c.P[4, 4]
