@@ -87,7 +87,7 @@ def test_fit_seeds_from_the_pattern_estimate(sample):
     geometry, candidates, batch, hit_qop, particle, _, _ = sample
     field = geometry.reconstruction_field()
     seeds, covs, _ = seed_batch(batch, field)
-    lsq = TrackBatch(**{k: v for k, v in vars(batch).items() if not k.startswith("pattern_")})
+    lsq = TrackBatch(**{k: v for k, v in vars(batch).items() if k != "pattern"})
     lsq_seeds, lsq_covs, _ = seed_batch(lsq, field)
     is_long = batch.track_type == TRACK_LONG
     np.testing.assert_array_equal(seeds[is_long, 4], candidates.state[is_long, 4])

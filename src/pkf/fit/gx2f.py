@@ -130,7 +130,8 @@ class ScatteringAngles(NamedTuple):
     """Propagator actor of the GX2F trajectory, one step k−1 → k at a time (k = cursor[0]):
     node_state[k] (5) transported in place with the current angles θ applied at each
     plane, jac[k] (5×5) the step's Jacobian; for the plane slots p (plane index
-    plane_lo + p) crossed so far in this step, from p_first = cursor[1], their G_p
+    plane_lo + p) crossed so far in this step, from p_first = cursor[1] to cursor[2] − 1
+    (the interaction advances cursor[2]: the slots need no search of the plane list), their G_p
     (g, 5×2 each, effect of θ_p on the state downstream) and Highland widths theta0
     (0: no material crossed there); seg, tmp 5×5 scratch, stages (4, 5, 5) the RK stages'
     scratch; width_shift [1/MeV] added to the local q/p where the Highland widths are
@@ -171,6 +172,7 @@ def _angles_interact(actor, ext, k, direction):
     on q/p (row 4 of jac scaled by ∂qop′/∂qop), then the kick K·θ on the slopes."""
     s = actor.node_state[actor.cursor[0]]
     p = k - actor.plane_lo
+    actor.cursor[2] = p + 1
     gp = actor.g[p]
     for i in range(5):
         gp[i, 0] = 0.0
@@ -214,7 +216,7 @@ def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, st
     """Trajectory of (α, θ): node states, step Jacobians jac[k] (node k−1 → k), for each
     plane slot p (plane index plane_lo + p) its G_p (5×2, effect of θ_p on the state at
     the next node) and Highland width theta0[p] (0: no material crossed there), and the
-    slots of step k in step_plane[k]…step_plane[k+1]−1; cursor (2) int scratch, stages
+    slots of step k in step_plane[k]…step_plane[k+1]−1; cursor (3) int scratch, stages
     (4, 5, 5) the RK stages' scratch; width_shift as in `ScatteringAngles`. Returns
     a status code."""
     copy5(alpha, node_state[0])
@@ -224,14 +226,14 @@ def _propagate(ext, alpha, theta, z, n, plane_lo, node_state, jac, g, theta0, st
     for k in range(1, n):
         copy5(node_state[k - 1], node_state[k])
         set_identity(jac[k])
-        p_first = search_sorted(ext.plane_z, z[k - 1], True) - plane_lo
-        step_plane[k] = p_first
+        p_first = step_plane[k]  # the planes of step k follow those of step k − 1
         cursor[0] = k
         cursor[1] = p_first
+        cursor[2] = p_first
         status = _propagate_angles(ext, actor, z[k - 1], z[k])
         if status != STATUS_OK:
             return status
-        step_plane[k + 1] = search_sorted(ext.plane_z, z[k], True) - plane_lo
+        step_plane[k + 1] = cursor[2]
     return STATUS_OK
 
 
@@ -427,7 +429,7 @@ def gx2f_fitter(ext, n_nodes: int, n_tracks: int, max_updates: int = MAX_UPDATES
     return Gx2fFitter(
         ext, int(max_updates), float(relative_chi2_change), False, np.zeros(n_tracks, dtype=np.int64),
         np.zeros(n_tracks, dtype=np.bool_), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.zeros(n_nodes + 1, dtype=np.int64),
-        np.zeros(2, dtype=np.int64),
+        np.zeros(3, dtype=np.int64),
         np.zeros((slots, 5, 2)), np.zeros((slots, 2)), np.zeros(slots), np.empty((slots, 2, 5)),
         np.empty((slots, 2)), np.empty((slots, 2, 2)), np.zeros((slots, 2)), np.empty(5), np.empty(5),
         np.empty((5, 5)), np.empty(5), np.empty((5, 2)), np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5)),

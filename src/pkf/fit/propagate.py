@@ -218,19 +218,6 @@ def add_plane_material(ext, k, state, direction, jac, noise):
 # ----------------------------------------------------------------------------------
 
 
-class KalmanMaterial(NamedTuple):
-    """Actor of a Kalman extrapolation: `state` (5) transported in place, `jac` (5×5)
-    accumulating the transport Jacobian, `noise` (5×5) the process noise Q at the end
-    point (C_out = F·C·Fᵀ + Q), work (6, 5, 5) scratch. (Built once per propagation;
-    the Kalman core is compiled without reference counting, `pkf.jit.NO_REFCOUNT`, so
-    building it costs no atomic operations.)"""
-
-    state: np.ndarray
-    jac: np.ndarray
-    noise: np.ndarray
-    work: np.ndarray
-
-
 @nb.njit(cache=True, inline="always")
 def _kalman_transport(actor, ext, z_from, z_to, crossed):
     """RK4 segment; jac ← S·jac, noise ← S·noise·Sᵀ (work[0] S, work[1] scratch, work[2:6]
@@ -247,12 +234,26 @@ def _kalman_transport(actor, ext, z_from, z_to, crossed):
 
 
 @nb.njit(cache=True, inline="always")
-def _kalman_interact(actor, ext, k, direction):
+def kalman_interact(actor, ext, k, direction):
+    """Plane k's material on the Kalman actor (`add_plane_material`)."""
     add_plane_material(ext, k, actor.state, direction, actor.jac, actor.noise)
     return STATUS_OK
 
 
-register_actor(KalmanMaterial, _kalman_transport, _kalman_interact)
+class KalmanMaterial(NamedTuple):
+    """Actor of a Kalman extrapolation: `state` (5) transported in place, `jac` (5×5)
+    accumulating the transport Jacobian, `noise` (5×5) the process noise Q at the end
+    point (C_out = F·C·Fᵀ + Q), work (6, 5, 5) scratch. (Built once per propagation;
+    the Kalman core is compiled without reference counting, `pkf.jit.NO_REFCOUNT`, so
+    building it costs no atomic operations.)"""
+
+    state: np.ndarray
+    jac: np.ndarray
+    noise: np.ndarray
+    work: np.ndarray
+
+
+register_actor(KalmanMaterial, _kalman_transport, kalman_interact)
 
 #: The navigator with the Kalman actor called directly (the reference extrapolation).
-propagate_kalman = propagator(_kalman_transport, _kalman_interact)
+propagate_kalman = propagator(_kalman_transport, kalman_interact)

@@ -12,6 +12,7 @@ stage's residuals, their variances and χ² (`TrackStates.residuals`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,10 +34,9 @@ class TrackBatch:
     offsets (T+1); per node: z [mm], layer, hit_row (row in the hits table), n_meas
     (1 strip, 2 pixel), hx/hy (n, 2) measurement directions, m (n, 2) measured values
     [mm], sigma (n, 2) errors [mm]; per track its type (`pkf.fit.seed.TRACK_*`; None:
-    every track long) and the pattern recognition's estimate (`pkf.fit.candidates`):
-    pattern_state (T, 5) at the track's first node and pattern_qop_var (T), NaN where
-    the pattern has none (None: no estimate at all); `seed_batch` prefers it to the
-    least-squares seed.
+    every track long) and the pattern recognition's estimate (`pkf.fit.candidates`) at
+    each track's first node, a `PatternEstimate` (None: no estimate at all); `seed_batch`
+    prefers it to the least-squares seed.
     """
 
     offsets: np.ndarray
@@ -49,8 +49,7 @@ class TrackBatch:
     m: np.ndarray
     sigma: np.ndarray
     track_type: np.ndarray | None = None
-    pattern_state: np.ndarray | None = None
-    pattern_qop_var: np.ndarray | None = None
+    pattern: PatternEstimate | None = None
 
     @property
     def n_tracks(self) -> int:
@@ -90,22 +89,30 @@ class TrackBatch:
         sigma[pixel, 1] = sigma_v[hit_row][pixel]
         z = geometry.layer_z[layer_of].copy()
         first_z = z[np.minimum(offsets[:-1], max(z.size - 1, 0))] if z.size else np.zeros(n_tracks)
-        pattern_state, pattern_qop_var = pattern_state_at(candidates, first_z)
         return cls(offsets, z, layer_of, hit_row, np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma,
-                   track_type_codes(geometry, offsets, layer_of), pattern_state, pattern_qop_var)
+                   track_type_codes(geometry, offsets, layer_of), pattern_state_at(candidates, first_z))
 
 
-def pattern_state_at(candidates: Candidates, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+class PatternEstimate(NamedTuple):
+    """The pattern recognition's estimate of each track of a batch at its first node:
+    state (T, 5) = (x, y [mm], tx, ty, q/p [1/MeV]) and the q/p variance qop_var (T)
+    [1/MeV²]; NaN where the pattern has none."""
+
+    state: np.ndarray
+    qop_var: np.ndarray
+
+
+def pattern_state_at(candidates: Candidates, z: np.ndarray) -> PatternEstimate:
     """The pattern's state estimate of each candidate moved to z (T) [mm] along its straight
     line (the pattern's states are VELO states, and the VELO is straight to the precision
     of a seed), and its q/p variance; all NaN if the pattern gave none."""
     if not candidates.has_estimate:
-        return np.full((candidates.n_tracks, 5), np.nan), np.full(candidates.n_tracks, np.nan)
+        return PatternEstimate(np.full((candidates.n_tracks, 5), np.nan), np.full(candidates.n_tracks, np.nan))
     state = candidates.state.copy()
     dz = z - candidates.state_z
     state[:, 0] += state[:, 2] * dz
     state[:, 1] += state[:, 3] * dz
-    return state, candidates.qop_var.copy()
+    return PatternEstimate(state, candidates.qop_var.copy())
 
 
 #: The Kalman core's code of each `KalmanOptions.smoother` name.
@@ -231,8 +238,8 @@ def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.nda
         track_type = np.full(batch.n_tracks, TRACK_LONG, dtype=np.int64)
     seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
                 *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64))
-    if batch.pattern_state is not None:
-        pattern_seed(seeds, covs, qop_var, track_type, batch.pattern_state, batch.pattern_qop_var)
+    if batch.pattern is not None:
+        pattern_seed(seeds, covs, qop_var, track_type, batch.pattern.state, batch.pattern.qop_var)
     return seeds, covs, qop_var
 
 
