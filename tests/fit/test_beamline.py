@@ -31,3 +31,29 @@ def test_point_of_closest_approach_and_material_noise():
     crossed = (geometry.planes.z > expected_z) & (geometry.planes.z <= z0)
     assert crossed.any()
     assert out_c[0, 2, 2] > transported[2, 2] * 1.01  # material between z_pca and the first hit
+
+
+def test_straight_line_step_is_the_reference_step_in_zero_field():
+    """The beamline's straight-line transport is the RK4 reference step in zero field to the
+    bit: state, Jacobian and material noise, up- and downstream through the VELO planes
+    (in and out of their active areas), including multi-step segments."""
+    from pkf.fit.beamline import straight_line_step
+    from pkf.fit.reference import reference_step
+
+    geometry = load_geometry("lhcb-like")
+    rng = np.random.default_rng(7)
+    scattered = 0
+    for max_step in (1e6, 37.0):
+        ext = straight_line_extrapolator(geometry)._replace(max_step=max_step)
+        for _ in range(200):
+            state = np.array([rng.normal(0, 15), rng.normal(0, 15), rng.normal(0, 0.2), rng.normal(0, 0.2),
+                              rng.choice([-1, 1]) / rng.uniform(1500, 1e5)])
+            z_from, z_to = rng.uniform(-300, 800, size=2)
+            out = [(np.empty(5), np.empty((5, 5)), np.empty((5, 5))) for _ in range(2)]
+            status = [step(ext, state, z_from, z_to, *o, np.empty((6, 5, 5)))
+                      for step, o in zip((reference_step, straight_line_step), out)]
+            assert status[0] == status[1]
+            for a, b in zip(*out):
+                assert np.array_equal(a, b), (state, z_from, z_to)
+            scattered += out[0][2][2, 2] > 0.0
+    assert scattered > 100  # most cases cross material in an active area
