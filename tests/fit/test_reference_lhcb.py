@@ -1,10 +1,11 @@
 """The reference Kalman fit on the lhcb-like detector: pulls, χ², outliers (issue 3)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from fit_helpers import TruthSample
 
-from pkf.fit.tracks import TrackBatch
 from pkf.geometry import load_geometry
 from pkf.params.gauss import gaussian_core
 
@@ -36,7 +37,7 @@ def test_displaced_hits_are_removed_as_outliers(pions):
     rng = np.random.default_rng(4)
     # a random node of each track, not the first or last (those anchor the states)
     pick = batch.offsets[long] + 1 + (rng.random(long.size) * (batch.n_nodes[long] - 2)).astype(int)
-    moved = TrackBatch(**{k: v.copy() for k, v in vars(batch).items()})
+    moved = replace(batch, m=batch.m.copy())
     moved.m[pick, 0] += 10.0 * moved.sigma[pick, 0] * rng.choice([-1.0, 1.0], size=pick.size)
     result = pions.fit(batch=moved)
     removed = ~result.node_active[pick]
