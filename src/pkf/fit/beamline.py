@@ -13,10 +13,10 @@ a tenth of the cost (the RK4 segment evaluated the field map four times per plan
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
-
-import math
 
 from pkf.fit.propagate import KalmanMaterial, in_envelope, propagator, kalman_interact
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
