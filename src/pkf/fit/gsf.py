@@ -965,9 +965,11 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     Two passes: the pair weights first (`_pair_log_weights`), then the product's mean
     and covariance (`_pair_product`) only for the pairs the weight cut keeps (w/Σw ≥
     weight_cut, and the largest): on lhcb-like electrons 62 of the 144 pairs (the
-    others cost the inversion only). The kept components and their normalised weights
-    are bitwise those of computing every product first, except where a kept pair's
-    product has a non-positive variance (it is dropped after the cut instead of before)."""
+    others cost one Cholesky factor, one substitution and one logarithm). The weights
+    are those of the full inverse and ten logarithms up to rounding (1e−12 relative in
+    χ², electron table equal to six digits); the kept products are computed as before;
+    a kept pair whose product has a non-positive variance is dropped after the cut
+    instead of before (its weight stays in the cut's normalisation)."""
     pair = nearest
     n, largest = _pair_log_weights(fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pair, moments[0], scratch, vec)
     if n == 0:
