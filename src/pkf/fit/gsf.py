@@ -147,6 +147,10 @@ convolution 2.3, products 3.5 (pair weights and kept products 2.1, their reducti
 output 0.3), updates 0.16 (a run at 9.2 ms). The 1 ms of issue 18 needs fewer
 reductions or fewer components to reduce, not faster scans: a reduction costs ~0.6 µs
 per merge and n − 12 merges, and transport and material alone are 2.7 ms.
+`benchmarks/fit_compare.py --fitters gsf --events 60 --rounds 3` (π gun, lhcb-like):
+new/old 0.79 (min) / 0.81 (median). Telescope (`benchmarks/vs_acts.py --events 50
+--repeat 2`, electrons): 1,064 and 1,132 µs per track against ACTS's GSF 2,314 and 1,846
+in the same runs (×0.46, ×0.61); before, 1,690 against 1,610 (×1.05); pulls unchanged.
 
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
