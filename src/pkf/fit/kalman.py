@@ -167,7 +167,9 @@ def scalar_update(x, p, hx, hy, m, var):
     """Kalman update of (x, P) in place with one scalar measurement m = hx·x + hy·y of
     variance var [mm²] (paper eqs. 4–8). Returns (r²/S, S): the χ² increment of the
     predicted residual r and its variance S = var + h·P·hᵀ; S ≤ 0 (nothing updated)
-    if P is not positive definite along h. Every fitter's measurement update."""
+    if P is not positive definite along h. Every fitter's measurement update. One
+    division (1/S, then products): the 21 divisions it made before cost ~25 ns per
+    measurement; the results differ from those by rounding only."""
     r = m - (hx * x[0] + hy * x[1])
     # P·h only involves the first two columns
     s = var
@@ -177,14 +179,16 @@ def scalar_update(x, p, hx, hy, m, var):
     if not s > 0.0:
         return 0.0, s
     ph = (ph0, ph1, hx * p[2, 0] + hy * p[2, 1], hx * p[3, 0] + hy * p[3, 1], hx * p[4, 0] + hy * p[4, 1])
+    inv_s = 1.0 / s  # one division, not 21: the gain K = P·h/S, then P −= K·(P·h)ᵀ
     for i in range(5):
-        x[i] += ph[i] * r / s
+        x[i] += ph[i] * inv_s * r
     for i in range(5):
+        k = ph[i] * inv_s
         for j in range(i, 5):
-            v = p[i, j] - ph[i] * ph[j] / s
+            v = p[i, j] - k * ph[j]
             p[i, j] = v
             p[j, i] = v
-    return r * r / s, s
+    return r * r * inv_s, s
 
 
 @nb.njit(cache=True, inline="always")
@@ -217,7 +221,7 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
     copy5(tmp_vec, vec)
 
 
-@nb.njit(cache=True, **NO_REFCOUNT)
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_reference, ref,
               pred, pred_cov, filt, filt_cov, jac, noise, smoother, out_state, out_cov,
               work, mats, vec5, perm):
@@ -275,7 +279,7 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     return status, chi2
 
 
-@nb.njit(cache=True, **NO_REFCOUNT)
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac, noise,
                                  out_state, out_cov, mats, vec5):
     """Backward information filter and weighted-mean combination (see module docstring),
