@@ -74,11 +74,12 @@ from pkf.physics.linalg import (
     invert_spd_ldl,
     invert_spd_triangular,
     matmul55,
-    matmul55_tn,
+    transport_info,
     matvec5,
     matvec5_t,
     sandwich,
     symmetrise,
+    transport_cov,
     zero5,
     zero55,
 )
@@ -212,10 +213,9 @@ def add_node_information(info, info_vec, n_meas, hx, hy, m, sigma, state):
 @nb.njit(cache=True, inline="always")
 def transport_information(f, a, vec, out, tmp, tmp_vec):
     """Information of the state downstream of a step x′ = F·x, carried to upstream of it:
-    out = Fᵀ·a·F (5×5, symmetrised; out may be a) and vec ← Fᵀ·vec. tmp (5×5) and
-    tmp_vec (5) are scratch."""
-    matmul55(a, f, tmp)
-    matmul55_tn(f, tmp, out)
+    out = Fᵀ·a·F (5×5, symmetrised; out may be a; `transport_info`) and vec ← Fᵀ·vec.
+    tmp (5×5) and tmp_vec (5) are scratch."""
+    transport_info(f, a, tmp, out)
     symmetrise(out)
     matvec5_t(f, vec, tmp_vec)
     copy5(tmp_vec, vec)
@@ -254,7 +254,7 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
                     for j in range(5):
                         s += jac[k, i, j] * (filt[k - 1, j] - lin[j])
                     pred[k, i] += s
-            sandwich(jac[k], filt_cov[k - 1], tmp, pred_cov[k])
+            transport_cov(jac[k], filt_cov[k - 1], tmp, pred_cov[k])
             for i in range(5):
                 for j in range(5):
                     pred_cov[k, i, j] += noise[k, i, j]
