@@ -36,9 +36,28 @@ def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoot
     fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1, smoother)
     r = FitResult.empty(batch)
     loop = track_loop(fitter)
-    args = (fitter, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma, seeds, covs,
-            np.array([9.0, 11.83]), 0, r.node_state, r.node_cov, r.node_chi2, r.node_active, r.status, r.chi2,
-            r.ndf, r.n_outliers)
+    args = (
+        fitter,
+        batch.offsets,
+        batch.z,
+        batch.n_meas,
+        batch.hx,
+        batch.hy,
+        batch.m,
+        batch.sigma,
+        seeds,
+        covs,
+        np.array([9.0, 11.83]),
+        0,
+        r.node_state,
+        r.node_cov,
+        r.node_chi2,
+        r.node_active,
+        r.status,
+        r.chi2,
+        r.ndf,
+        r.n_outliers,
+    )
     loop(*args)
     times = []
     for _ in range(repeat):
@@ -63,8 +82,10 @@ def main() -> None:
         ext, _ = fit_compare._fit_function(name, geometry)
         full = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_WEIGHTED_MEAN, args.repeat)
         forward = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_NONE, args.repeat)
-        print(f"{name:<13} {batch.z.size} nodes  ns/node: full {full:6.0f}  forward {forward:6.0f}  "
-              f"backward+combination {full - forward:6.0f}")
+        print(
+            f"{name:<13} {batch.z.size} nodes  ns/node: full {full:6.0f}  forward {forward:6.0f}  "
+            f"backward+combination {full - forward:6.0f}"
+        )
 
 
 if __name__ == "__main__":

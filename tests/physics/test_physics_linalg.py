@@ -106,8 +106,15 @@ def test_structured_transports_are_bitwise_the_dense_ones(rng):
     """transport_cov = sandwich and transport_info = aᵀ… products bitwise, for a VELO-step
     Jacobian (identity but f02, f04, f13, f24), one that keeps q/p (last row e4) and a
     dense one; the structured paths are taken only for those structures."""
-    from pkf.physics.linalg import (is_straight_velo, is_unit_last_row, matmul55, matmul55_tn, sandwich,
-                                    transport_cov, transport_info)
+    from pkf.physics.linalg import (
+        is_straight_velo,
+        is_unit_last_row,
+        matmul55,
+        matmul55_tn,
+        sandwich,
+        transport_cov,
+        transport_info,
+    )
 
     velo = np.eye(5)
     velo[0, 2], velo[0, 4], velo[1, 3], velo[2, 4] = 12.5, -3e-3, 12.5, 4e-4

@@ -146,11 +146,25 @@ def is_unit_last_row(f):
 def is_straight_velo(f):
     """True if f = 1 except f[0, 2], f[0, 4], f[1, 3], f[2, 4] (the VELO step, paper eq. 10:
     x′ = x + tx·Δz + ½k·Δz·q/p, y′ = y + ty·Δz, tx′ = tx + k·q/p, and a straight line)."""
-    return (f[0, 0] == 1.0 and f[0, 1] == 0.0 and f[0, 3] == 0.0
-            and f[1, 0] == 0.0 and f[1, 1] == 1.0 and f[1, 2] == 0.0 and f[1, 4] == 0.0
-            and f[2, 0] == 0.0 and f[2, 1] == 0.0 and f[2, 2] == 1.0 and f[2, 3] == 0.0
-            and f[3, 0] == 0.0 and f[3, 1] == 0.0 and f[3, 2] == 0.0 and f[3, 3] == 1.0 and f[3, 4] == 0.0
-            and is_unit_last_row(f))
+    return (
+        f[0, 0] == 1.0
+        and f[0, 1] == 0.0
+        and f[0, 3] == 0.0
+        and f[1, 0] == 0.0
+        and f[1, 1] == 1.0
+        and f[1, 2] == 0.0
+        and f[1, 4] == 0.0
+        and f[2, 0] == 0.0
+        and f[2, 1] == 0.0
+        and f[2, 2] == 1.0
+        and f[2, 3] == 0.0
+        and f[3, 0] == 0.0
+        and f[3, 1] == 0.0
+        and f[3, 2] == 0.0
+        and f[3, 3] == 1.0
+        and f[3, 4] == 0.0
+        and is_unit_last_row(f)
+    )
 
 
 @nb.njit(cache=True, inline="always")
