@@ -75,3 +75,63 @@ def test_triangular_inverse_equals_the_lu_path_and_numpy(rng):
     bad = _spd(rng, scales)
     bad[4, 4] = -bad[4, 4]
     assert not invert_spd_triangular(bad, np.zeros((5, 5)), work, vec)
+
+
+def test_ldl_inverse_equals_the_cholesky_inverse_and_numpy(rng):
+    """invert_spd_ldl (L·D·Lᵀ, no equilibration, no square root) = invert_spd_triangular =
+    numpy up to rounding on covariances spanning 10⁸ in scale and with correlations up to
+    0.999 (the scale does not matter to an unpivoted triangular factorisation); it refuses
+    a matrix that is not positive definite, or NaN."""
+    from pkf.physics.linalg import invert_spd_ldl, invert_spd_triangular
+
+    scales = np.array([0.05, 0.05, 1e-4, 1e-4, 1e-7])
+    work, vec = np.zeros((5, 5)), np.zeros(10)
+    for _ in range(200):
+        a = _spd(rng, scales)
+        fast, chol = np.zeros((5, 5)), np.zeros((5, 5))
+        assert invert_spd_ldl(a, fast, work, vec) and invert_spd_triangular(a, chol, work.copy(), vec.copy())
+        ref = np.linalg.inv(a)
+        norm = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
+        assert np.max(np.abs(fast - ref) / norm) < 1e-9
+        assert np.max(np.abs(fast - chol) / norm) < 1e-9
+        assert np.array_equal(fast, fast.T)
+    bad = _spd(rng, scales)
+    bad[4, 4] = -bad[4, 4]
+    assert not invert_spd_ldl(bad, np.zeros((5, 5)), work, vec)
+    bad[4, 4] = np.nan
+    assert not invert_spd_ldl(bad, np.zeros((5, 5)), work, vec)
+
+
+def test_structured_transports_are_bitwise_the_dense_ones(rng):
+    """transport_cov = sandwich and transport_info = aᵀ… products bitwise, for a VELO-step
+    Jacobian (identity but f02, f04, f13, f24), one that keeps q/p (last row e4) and a
+    dense one; the structured paths are taken only for those structures."""
+    from pkf.physics.linalg import (
+        is_straight_velo,
+        is_unit_last_row,
+        matmul55,
+        matmul55_tn,
+        sandwich,
+        transport_cov,
+        transport_info,
+    )
+
+    velo = np.eye(5)
+    velo[0, 2], velo[0, 4], velo[1, 3], velo[2, 4] = 12.5, -3e-3, 12.5, 4e-4
+    keeps_qop = rng.normal(size=(5, 5))
+    keeps_qop[4] = (0.0, 0.0, 0.0, 0.0, 1.0)
+    dense = rng.normal(size=(5, 5))
+    assert is_straight_velo(velo) and not is_straight_velo(keeps_qop) and not is_straight_velo(dense)
+    assert is_unit_last_row(keeps_qop) and not is_unit_last_row(dense)
+    for f in (velo, keeps_qop, dense):
+        for _ in range(20):
+            c = _spd(rng, np.array([0.05, 0.05, 1e-4, 1e-4, 1e-7]))
+            c[0, 1] = c[1, 0] = -0.0
+            want, got, tmp = np.zeros((5, 5)), np.zeros((5, 5)), np.zeros((5, 5))
+            sandwich(f, c, tmp, want)
+            transport_cov(f, c, tmp, got)
+            assert want.tobytes() == got.tobytes()
+            matmul55(c, f, tmp)
+            matmul55_tn(f, tmp, want)
+            transport_info(f, c, np.zeros((5, 5)), got)
+            assert want.tobytes() == got.tobytes()

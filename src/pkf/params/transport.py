@@ -36,7 +36,7 @@ import numpy as np
 
 from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
-from pkf.physics.linalg import copy5, copy55, matmul55, sandwich, search_sorted, set_identity
+from pkf.physics.linalg import copy5, copy55, matmul55, search_sorted, set_identity, transport_cov
 from pkf.physics.transport import rk4_transport_jacobian
 
 TRANSPORT_OK = 0
@@ -86,6 +86,21 @@ class ParametrizedExtrapolator(NamedTuple):
 @nb.njit(cache=True, inline="always")
 def _layer_of(layer_z, z):
     i = search_sorted(layer_z, z, False)
+    if i < layer_z.size and abs(layer_z[i] - z) < 1e-6:
+        return i
+    return -1
+
+
+@nb.njit(cache=True, inline="always")
+def _layer_after(layer_z, a, z):
+    """`_layer_of(layer_z, z)` knowing layer a (−1: none): for a z downstream of it, a
+    linear scan from a + 1 (the next node is mostly one to three layers on) instead of a
+    second bisection, with the same result."""
+    if a < 0 or not layer_z[a] < z:
+        return _layer_of(layer_z, z)
+    i = a + 1
+    while i < layer_z.size and layer_z[i] < z:
+        i += 1
     if i < layer_z.size and abs(layer_z[i] - z) < 1e-6:
         return i
     return -1
@@ -193,7 +208,7 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
     # small helpers get plain arrays: passing the whole context costs ~20 reference counts
     layer_z = ext.layer_z
     a = _layer_of(layer_z, z_from)
-    b = _layer_of(layer_z, z_to)
+    b = _layer_after(layer_z, a, z_to)
     if a < 0 or b < 0 or b < a:
         return TRANSPORT_FAILED
     seg_jac = work[0]
@@ -205,21 +220,23 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
     first = True
     while cur < b:
         kind, slot, nxt = next_step(ext.layer_sub, ext.sub_last, ext.within_type, ext.between_type, cur, b)
+        # the first paper step writes F = J, Q = Q_seg in place (most node-to-node steps
+        # are a single one); later ones go to scratch and are chained
+        step_jac = jac_out if first else seg_jac
+        step_noise_out = noise_out if first else seg_noise
         status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
-                        layer_z[cur], layer_z[nxt], seg_state, seg_jac, ext.field_kind, ext.field_params,
+                        layer_z[cur], layer_z[nxt], seg_state, step_jac, ext.field_kind, ext.field_params,
                         ext.field_grid, work[1:5])  # work[1:5] is free until step_noise
         if status != TRANSPORT_OK:
             return status
-        step_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], seg_jac, seg_noise)
+        step_noise(ext.noise[slot], state_out, layer_z[nxt] - layer_z[cur], step_jac, step_noise_out)
         copy5(seg_state, state_out)
-        if first:  # F = J, Q = Q_seg: most node-to-node steps are a single paper step
-            copy55(seg_jac, jac_out)
-            copy55(seg_noise, noise_out)
+        if first:
             first = False
         else:  # F ← J·F, Q ← J·Q·Jᵀ + Q_seg
             matmul55(seg_jac, jac_out, tmp)
             copy55(tmp, jac_out)
-            sandwich(seg_jac, noise_out, tmp, tmp2)
+            transport_cov(seg_jac, noise_out, tmp, tmp2)
             for i in range(5):
                 for j in range(5):
                     noise_out[i, j] = tmp2[i, j] + seg_noise[i, j]

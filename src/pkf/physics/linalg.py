@@ -136,6 +136,128 @@ def sandwich(f, c, tmp, out):
 
 
 @nb.njit(cache=True, inline="always")
+def is_unit_last_row(f):
+    """True if row 4 of the 5×5 f is (0, 0, 0, 0, 1): a transport that keeps q/p (every
+    parametrized step, and RK4 without energy loss in the Jacobian)."""
+    return f[4, 0] == 0.0 and f[4, 1] == 0.0 and f[4, 2] == 0.0 and f[4, 3] == 0.0 and f[4, 4] == 1.0
+
+
+@nb.njit(cache=True, inline="always")
+def is_straight_velo(f):
+    """True if f = 1 except f[0, 2], f[0, 4], f[1, 3], f[2, 4] (the VELO step, paper eq. 10:
+    x′ = x + tx·Δz + ½k·Δz·q/p, y′ = y + ty·Δz, tx′ = tx + k·q/p, and a straight line)."""
+    return (
+        f[0, 0] == 1.0
+        and f[0, 1] == 0.0
+        and f[0, 3] == 0.0
+        and f[1, 0] == 0.0
+        and f[1, 1] == 1.0
+        and f[1, 2] == 0.0
+        and f[1, 4] == 0.0
+        and f[2, 0] == 0.0
+        and f[2, 1] == 0.0
+        and f[2, 2] == 1.0
+        and f[2, 3] == 0.0
+        and f[3, 0] == 0.0
+        and f[3, 1] == 0.0
+        and f[3, 2] == 0.0
+        and f[3, 3] == 1.0
+        and f[3, 4] == 0.0
+        and is_unit_last_row(f)
+    )
+
+
+@nb.njit(cache=True, inline="always")
+def transport_cov(f, c, tmp, out):
+    """out = f·c·fᵀ (5×5), bitwise equal to `sandwich` (same products, same order of the
+    sums, starting from 0.0; only terms that are exact zeros, f[i, k] = 0, are left out and
+    products by f[i, k] = 1 taken as they are), for the Jacobians of known structure:
+    the VELO step (`is_straight_velo`: ~30 multiply–adds instead of 200) and any step
+    that keeps q/p (`is_unit_last_row`: 150); otherwise `sandwich`. tmp is 5×5 scratch;
+    out may be c, not f or tmp. For finite inputs."""
+    if is_straight_velo(f):
+        a = f[0, 2]
+        b = f[0, 4]
+        d = f[1, 3]
+        e = f[2, 4]
+        for j in range(5):
+            tmp[0, j] = 0.0 + c[0, j] + a * c[2, j] + b * c[4, j]
+            tmp[1, j] = 0.0 + c[1, j] + d * c[3, j]
+            tmp[2, j] = 0.0 + c[2, j] + e * c[4, j]
+            tmp[3, j] = 0.0 + c[3, j]
+            tmp[4, j] = 0.0 + c[4, j]
+        for i in range(5):
+            t0 = 0.0 + tmp[i, 0] + a * tmp[i, 2] + b * tmp[i, 4]
+            t1 = 0.0 + tmp[i, 1] + d * tmp[i, 3]
+            t2 = 0.0 + tmp[i, 2] + e * tmp[i, 4]
+            t3 = 0.0 + tmp[i, 3]
+            t4 = 0.0 + tmp[i, 4]
+            if i <= 0:
+                out[0, i] = t0
+                out[i, 0] = t0
+            if i <= 1:
+                out[1, i] = t1
+                out[i, 1] = t1
+            if i <= 2:
+                out[2, i] = t2
+                out[i, 2] = t2
+            if i <= 3:
+                out[3, i] = t3
+                out[i, 3] = t3
+            out[4, i] = t4
+            out[i, 4] = t4
+        return
+    if is_unit_last_row(f):
+        for i in range(4):
+            for j in range(5):
+                s = 0.0
+                for k in range(5):
+                    s += f[i, k] * c[k, j]
+                tmp[i, j] = s
+        for j in range(5):
+            tmp[4, j] = 0.0 + c[4, j]
+        for i in range(5):
+            for j in range(i, 4):
+                s = 0.0
+                for k in range(5):
+                    s += tmp[i, k] * f[j, k]
+                out[i, j] = s
+                out[j, i] = s
+            out[i, 4] = 0.0 + tmp[i, 4]
+            out[4, i] = out[i, 4]
+        return
+    sandwich(f, c, tmp, out)
+
+
+@nb.njit(cache=True, inline="always")
+def transport_info(f, a, tmp, out):
+    """out = fᵀ·a·f (5×5, not symmetrised), bitwise equal to `matmul55` (tmp = a·f) then
+    `matmul55_tn` (out = fᵀ·tmp), with the exact-zero terms of a VELO step's f left out
+    (`is_straight_velo`, as in `transport_cov`): ~40 multiply–adds instead of 250.
+    out must not alias f or tmp; for finite inputs."""
+    if is_straight_velo(f):
+        p = f[0, 2]
+        b = f[0, 4]
+        d = f[1, 3]
+        e = f[2, 4]
+        for i in range(5):
+            tmp[i, 0] = 0.0 + a[i, 0]
+            tmp[i, 1] = 0.0 + a[i, 1]
+            tmp[i, 2] = 0.0 + a[i, 0] * p + a[i, 2]
+            tmp[i, 3] = 0.0 + a[i, 1] * d + a[i, 3]
+            tmp[i, 4] = 0.0 + a[i, 0] * b + a[i, 2] * e + a[i, 4]
+        for j in range(5):
+            out[0, j] = 0.0 + tmp[0, j]
+            out[1, j] = 0.0 + tmp[1, j]
+            out[2, j] = 0.0 + p * tmp[0, j] + tmp[2, j]
+            out[3, j] = 0.0 + d * tmp[1, j] + tmp[3, j]
+            out[4, j] = 0.0 + b * tmp[0, j] + e * tmp[2, j] + tmp[4, j]
+        return
+    matmul55(a, f, tmp)
+    matmul55_tn(f, tmp, out)
+
+
+@nb.njit(cache=True, inline="always")
 def symmetrise(a):
     """a = (a + aᵀ)/2 in place (5×5)."""
     for i in range(5):
@@ -235,6 +357,53 @@ def invert_spd_triangular(a, out, work, vec):
             v = t * scale[i] * scale[j]
             out[i, j] = v
             out[j, i] = v
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def invert_spd_ldl(a, out, work, dinv):
+    """out = a⁻¹ for a symmetric positive-definite 5×5 matrix through a = L·D·Lᵀ (L unit
+    lower triangular, D diagonal: no square roots) and a⁻¹ = L⁻ᵀ·D⁻¹·L⁻¹ on one triangle.
+
+    Five divisions (the reciprocal pivots) and ~130 multiply–adds: about half the latency
+    of `invert_spd_triangular`, whose equilibration a′ = S·a·S adds ten square roots and
+    five divisions without making the result more accurate — a triangular factorisation
+    without pivoting commutes with a diagonal scaling (S·L·S⁻¹ and S·D·S), so its
+    rounding errors are those of the equilibrated matrix already (van der Sluis); scaling
+    only protects against over- and underflow, far away for covariances in mm and 1/MeV.
+    Equal to `invert_spd_triangular` up to rounding (not bitwise). work (5×5): L below
+    the diagonal, above it first (L·D)ᵀ, then (L⁻¹)ᵀ; dinv (≥ 5): D⁻¹. Returns False
+    (out undefined) if a pivot is not positive (a not positive definite, or NaN).
+    """
+    for j in range(5):
+        d = a[j, j]
+        for k in range(j):
+            d -= work[j, k] * work[k, j]
+        if not d > 0.0:
+            return False
+        r = 1.0 / d
+        dinv[j] = r
+        for i in range(j + 1, 5):
+            t = a[i, j]
+            for k in range(j):
+                t -= work[i, k] * work[k, j]
+            work[j, i] = t  # L[i, j]·D[j], read by the later columns
+            work[i, j] = t * r
+    # L⁻¹ (unit lower), stored transposed above the diagonal: work[j, i] = (L⁻¹)[i, j], i > j
+    for j in range(4):
+        for i in range(j + 1, 5):
+            t = -work[i, j]
+            for k in range(j + 1, i):
+                t -= work[i, k] * work[j, k]
+            work[j, i] = t
+    # a⁻¹[i, j] = Σ_{k ≥ j} (L⁻¹)[k, i]·D⁻¹[k]·(L⁻¹)[k, j], i ≤ j, (L⁻¹)[k, k] = 1
+    for i in range(5):
+        for j in range(i, 5):
+            t = dinv[j] * (work[i, j] if j > i else 1.0)
+            for k in range(j + 1, 5):
+                t += work[i, k] * dinv[k] * work[j, k]
+            out[i, j] = t
+            out[j, i] = t
     return True
 
 

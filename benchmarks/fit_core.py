@@ -1,0 +1,92 @@
+"""Kernel-only speed of the Kalman core: the compiled track loop alone, ns per node.
+
+Fits the tracks of `benchmarks/fit_compare.py`'s dataset (``--data``, made by it: a
+lhcb-like π gun, long truth tracks and their seeds) once per repeat with one pass and no
+outlier removal, with the weighted-mean combination ("full") and without it ("forward":
+the forward filter only; full − forward = backward filter + combination). No Python around
+the loop (no result allocation, no beamline), so differences between checkouts are those
+of the kernels. Prints the minimum over ``--repeat`` of the CPU time (time.process_time)
+per node. Compare checkouts by running it alternately with each on PYTHONPATH (and its own
+NUMBA_CACHE_DIR):
+
+    python benchmarks/fit_core.py [--fitters parametrized,reference] [--repeat 15] \
+        [--data /tmp/fit-compare-pigun-300.npz]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fit_compare  # noqa: E402
+
+from pkf.fit.driver import max_nodes, track_loop  # noqa: E402
+from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, kalman_fitter  # noqa: E402
+from pkf.fit.tracks import FitResult, TrackBatch  # noqa: E402
+from pkf.geometry import load_geometry  # noqa: E402
+
+
+def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoother: int, repeat: int) -> float:
+    """Minimum CPU ns per node of `repeat` fits of `batch` (after one warm-up fit)."""
+    fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1, smoother)
+    r = FitResult.empty(batch)
+    loop = track_loop(fitter)
+    args = (
+        fitter,
+        batch.offsets,
+        batch.z,
+        batch.n_meas,
+        batch.hx,
+        batch.hy,
+        batch.m,
+        batch.sigma,
+        seeds,
+        covs,
+        np.array([9.0, 11.83]),
+        0,
+        r.node_state,
+        r.node_cov,
+        r.node_chi2,
+        r.node_active,
+        r.status,
+        r.chi2,
+        r.ndf,
+        r.n_outliers,
+    )
+    loop(*args)
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        loop(*args)
+        times.append(time.process_time() - t0)
+    return 1e9 * min(times) / batch.z.size
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fitters", default="parametrized")
+    parser.add_argument("--repeat", type=int, default=15)
+    parser.add_argument("--data", type=Path, default=Path("/tmp/fit-compare-pigun-300.npz"))
+    args = parser.parse_args()
+    if not args.data.is_file():
+        fit_compare.make_dataset(args.data, 300)
+    d = np.load(args.data)
+    batch = TrackBatch(*(d[f] for f in fit_compare.BATCH_FIELDS))
+    geometry = load_geometry("lhcb-like")
+    for name in args.fitters.split(","):
+        ext, _ = fit_compare._fit_function(name, geometry)
+        full = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_WEIGHTED_MEAN, args.repeat)
+        forward = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_NONE, args.repeat)
+        print(
+            f"{name:<13} {batch.z.size} nodes  ns/node: full {full:6.0f}  forward {forward:6.0f}  "
+            f"backward+combination {full - forward:6.0f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
