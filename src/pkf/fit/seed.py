@@ -47,8 +47,11 @@ import numba as nb
 import numpy as np
 
 from pkf.physics.linalg import invert_spd, matvec5
+from pkf.geometry.acceptance import in_active_area
 from pkf.geometry.detector import SUBDETECTORS
 from pkf.geometry.field import field_at
+from pkf.physics.constants import MASS_PION
+from pkf.physics.materials import highland_theta0, path_length_x0
 from pkf.physics.transport import C_LIGHT
 
 SEED_STEP = 50.0  # mm, integration step of the kick integrals
@@ -68,6 +71,13 @@ VELO_PT_ASSUMED = 200.0
 VELO_QOP_PRIOR_SCALE = 3.0
 #: Largest momentum [MeV] the VELO-only assumption may give (tracks along the beam).
 VELO_P_ASSUMED_MAX = 50000.0
+#: Momentum range [MeV] of the multiple-scattering estimate of VELO-only tracks
+#: (`velo_momentum_estimate`): its likelihood is scanned on VELO_P_GRID points even in ln p.
+VELO_P_MIN = 50.0
+VELO_P_MAX = 200000.0
+VELO_P_GRID = 81
+#: Initial slope variance of the estimate's straight-line filter (rad²): no slope information.
+_LINE_SLOPE_VARIANCE = 1.0
 #: σ(q/p)/|q/p| of the seed prior of upstream (VELO + UT) tracks, instead of SEED_QOP_FRACTION.
 UPSTREAM_QOP_FRACTION = 1.0
 
@@ -256,3 +266,206 @@ def pattern_seed(states, covs, qop_var, track_type, pattern_state, pattern_qop_v
             covs[t, 4, i] = 0.0
         covs[t, 4, 4] = (fraction * line[4]) ** 2 + pattern_qop_var[t]
         qop_var[t] = pattern_qop_var[t]
+
+
+@nb.njit(cache=True)
+def _scattering_planes(z_first, z_last, x0, y0, tx, ty, z_ref, plane_z, plane_x_over_x0, plane_half_x,
+                       plane_half_y, plane_hole_radius, plane_hole_half_x, plane_hole_half_y, plane_side,
+                       plane_side_overlap, out_z, out_t):
+    """The material planes strictly between z_first and z_last [mm] that the straight line
+    (x0, y0, tx, ty at z_ref) crosses in their active area, as in the fitters
+    (`pkf.fit.propagate.plane_path_x0`): their z into out_z and path t [X0] into out_t.
+    Returns their number."""
+    n = 0
+    for k in range(plane_z.size):
+        zk = plane_z[k]
+        if zk <= z_first or zk >= z_last or n >= out_z.size:
+            continue
+        x = x0 + tx * (zk - z_ref)
+        y = y0 + ty * (zk - z_ref)
+        if not in_active_area(x, y, plane_half_x[k], plane_half_y[k], plane_hole_radius[k],
+                              plane_hole_half_x[k], plane_hole_half_y[k], plane_side[k], plane_side_overlap[k]):
+            continue
+        t = path_length_x0(plane_x_over_x0[k], tx, ty)
+        if t <= 0.0:
+            continue
+        out_z[n] = zk
+        out_t[n] = t
+        n += 1
+    return n
+
+
+@nb.njit(cache=True)
+def velo_scattering_nll(p, z, n_meas, hx, hy, m, sigma, tx, ty, scat_z, scat_t, n_scat):
+    """−2 ln L(p) of a track's x and y measurements as a straight line with multiple
+    scattering at momentum p [MeV] (pion, Highland) in the planes scat_z/scat_t [mm, X0].
+
+    Per projection u ∈ {x, y} (pixel measurements with h = (1, 0) or (0, 1)) a Kalman filter
+    of (u, du/dz) with the thin-scatterer slope noise θ0²(p, t)·N²·(1 + t_u²) (N² = 1 + tx² + ty²,
+    docs/physics.md#material-effects; the small x–y correlation N²·tx·ty is neglected) sums
+    r_k²/S_k + ln S_k over its innovations from the third measurement on: the first two fix
+    the line (no prior), so this is the restricted likelihood of the noise, free of the
+    line's four parameters."""
+    n2 = 1.0 + tx * tx + ty * ty
+    total = 0.0
+    for proj in range(2):
+        slope = tx if proj == 0 else ty
+        factor = n2 * (1.0 + slope * slope)
+        u = 0.0
+        t = slope
+        puu = 0.0
+        put = 0.0
+        ptt = 0.0
+        zc = 0.0
+        used = 0
+        ip = 0
+        for k in range(z.size):
+            mk = 0.0
+            vk = 0.0
+            found = False
+            for j in range(n_meas[k]):
+                if (proj == 0 and hx[k, j] == 1.0 and hy[k, j] == 0.0) or (
+                        proj == 1 and hx[k, j] == 0.0 and hy[k, j] == 1.0):
+                    mk = m[k, j]
+                    vk = sigma[k, j] * sigma[k, j]
+                    found = True
+            if not found:
+                continue
+            if used == 0:
+                u = mk
+                puu = vk
+                put = 0.0
+                ptt = _LINE_SLOPE_VARIANCE
+                zc = z[k]
+                used = 1
+                while ip < n_scat and scat_z[ip] <= zc:
+                    ip += 1
+                continue
+            # transport to z[k] through the scattering planes on the way
+            while True:
+                z_next = z[k]
+                at_plane = ip < n_scat and scat_z[ip] <= z[k]
+                if at_plane:
+                    z_next = scat_z[ip]
+                d = z_next - zc
+                u += t * d
+                puu += 2.0 * d * put + d * d * ptt
+                put += d * ptt
+                zc = z_next
+                if not at_plane:
+                    break
+                theta0 = highland_theta0(p, MASS_PION, 1.0, scat_t[ip])
+                ptt += theta0 * theta0 * factor
+                ip += 1
+            r = mk - u
+            s = puu + vk
+            if used >= 2:
+                total += r * r / s + math.log(s)
+            ku = puu / s
+            kt = put / s
+            u += ku * r
+            t += kt * r
+            ptt -= kt * put
+            put -= ku * put
+            puu -= ku * puu
+            used += 1
+    return total
+
+
+@nb.njit(cache=True)
+def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, plane_z, plane_x_over_x0,
+                           plane_half_x, plane_half_y, plane_hole_radius, plane_hole_half_x,
+                           plane_hole_half_y, plane_side, plane_side_overlap, out):
+    """Momentum of a VELO-only track from its own multiple scattering (see the module
+    docstring): the maximum of the restricted likelihood `velo_scattering_nll` over
+    VELO_P_GRID momenta even in ln p between VELO_P_MIN and VELO_P_MAX, refined by a
+    parabola in ln p. out = (p̂ [MeV], 1/p at the −2 ln L + 1 crossing below p̂ and above
+    it [1/MeV]; 0 above it where the likelihood stays within 1 of its maximum up to
+    VELO_P_MAX). Returns False where the track has no scattering planes or fewer than three
+    measurements in either projection."""
+    scat_z = np.empty(plane_z.size)
+    scat_t = np.empty(plane_z.size)
+    n_scat = _scattering_planes(z[0], z[-1], x0, y0, tx, ty, z[0], plane_z, plane_x_over_x0, plane_half_x,
+                                plane_half_y, plane_hole_radius, plane_hole_half_x, plane_hole_half_y,
+                                plane_side, plane_side_overlap, scat_z, scat_t)
+    if n_scat == 0 or z.size < 3:
+        return False
+    lo = math.log(VELO_P_MIN)
+    step = (math.log(VELO_P_MAX) - lo) / (VELO_P_GRID - 1)
+    nll = np.empty(VELO_P_GRID)
+    best = 0
+    for g in range(VELO_P_GRID):
+        nll[g] = velo_scattering_nll(math.exp(lo + g * step), z, n_meas, hx, hy, m, sigma, tx, ty,
+                                     scat_z, scat_t, n_scat)
+        if nll[g] < nll[best]:
+            best = g
+    if not math.isfinite(nll[best]):
+        return False
+    ln_p = lo + best * step
+    if 0 < best < VELO_P_GRID - 1:
+        curv = nll[best - 1] - 2.0 * nll[best] + nll[best + 1]
+        if curv > 0.0:
+            ln_p += step * 0.5 * (nll[best - 1] - nll[best + 1]) / curv
+    level = nll[best] + 1.0
+    # Δ(−2 ln L) = 1 crossings, linear in ln p between grid points
+    ln_lo = lo
+    for g in range(best, 0, -1):
+        if nll[g - 1] > level:
+            ln_lo = lo + step * (g - (level - nll[g]) / (nll[g - 1] - nll[g]))
+            break
+    inv_hi = 0.0
+    for g in range(best, VELO_P_GRID - 1):
+        if nll[g + 1] > level:
+            inv_hi = math.exp(-(lo + step * (g + (level - nll[g]) / (nll[g + 1] - nll[g]))))
+            break
+    out[0] = math.exp(ln_p)
+    out[1] = math.exp(-ln_lo)
+    out[2] = inv_hi
+    return True
+
+
+@nb.njit(cache=True)
+def velo_momentum_estimates(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, states,
+                            track_type, plane_z, plane_x_over_x0, plane_half_x, plane_half_y,
+                            plane_hole_radius, plane_hole_half_x, plane_hole_half_y, plane_side,
+                            plane_side_overlap, out):
+    """`velo_momentum_estimate` of every VELO-only track of a CSR batch (lines from states
+    (T, 5) at each track's first node) into out (T, 3); NaN rows for the other tracks and
+    where there is no estimate."""
+    for t in range(offsets.size - 1):
+        for i in range(3):
+            out[t, i] = np.nan
+        if track_type[t] != TRACK_VELO or not math.isfinite(states[t, 2]):
+            continue
+        lo = offsets[t]
+        hi = offsets[t + 1]
+        velo_momentum_estimate(node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi], node_m[lo:hi],
+                               node_sigma[lo:hi], states[t, 0], states[t, 1], states[t, 2], states[t, 3],
+                               plane_z, plane_x_over_x0, plane_half_x, plane_half_y, plane_hole_radius,
+                               plane_hole_half_x, plane_hole_half_y, plane_side, plane_side_overlap, out[t])
+
+
+@nb.njit(cache=True)
+def velo_momentum_prior(state, cov, estimate):
+    """Replace the q/p of a VELO-only seed (state, cov 5×5 at the first hit) by the
+    multiple-scattering estimate (`velo_momentum_estimate`'s out): |q/p| = 1/p̂ with p̂ clipped
+    to [VELO_P_MIN, VELO_P_ASSUMED_MAX], the sign of the state's q/p, variance the square of
+    half the Δ(−2 ln L) = 1 interval in 1/p, no correlations."""
+    p = min(max(estimate[0], VELO_P_MIN), VELO_P_ASSUMED_MAX)
+    qop = 1.0 / p
+    sigma = 0.5 * (estimate[1] - estimate[2])
+    if state[4] < 0.0:
+        qop = -qop
+    state[4] = qop
+    for i in range(5):
+        cov[i, 4] = 0.0
+        cov[4, i] = 0.0
+    cov[4, 4] = sigma * sigma
+
+
+@nb.njit(cache=True)
+def velo_momentum_seeds(states, covs, estimates):
+    """`velo_momentum_prior` for every track (T) with a finite estimate (T, 3)."""
+    for t in range(states.shape[0]):
+        if math.isfinite(estimates[t, 0]) and math.isfinite(states[t, 4]):
+            velo_momentum_prior(states[t], covs[t], estimates[t])
