@@ -394,7 +394,7 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     candidates = truth_candidates(col(hits, "event_id").astype(np.int64), layer, col(mc, "particle_id").astype(np.int64))
     batch = TrackBatch.from_candidates(geometry, candidates, layer,
                                        *(col(hits, c).astype(float) for c in ("u", "v", "sigma_u", "sigma_v")))
-    seeds, covs, _ = seed_batch(batch, geometry.reconstruction_field())
+    seeds, covs, _ = seed_batch(batch, geometry.reconstruction_field(), geometry)
     velo = batch.track_type == TRACK_VELO
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, covs)
     sel = velo & (result.status == 0)

@@ -377,12 +377,13 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, plane_z,
                            plane_half_x, plane_half_y, plane_hole_radius, plane_hole_half_x,
                            plane_hole_half_y, plane_side, plane_side_overlap, out):
     """Momentum of a VELO-only track from its own multiple scattering (see the module
-    docstring): the maximum of the restricted likelihood `velo_scattering_nll` over
-    VELO_P_GRID momenta even in ln p between VELO_P_MIN and VELO_P_MAX, refined by a
-    parabola in ln p. out = (p̂ [MeV], 1/p at the −2 ln L + 1 crossing below p̂ and above
-    it [1/MeV]; 0 above it where the likelihood stays within 1 of its maximum up to
-    VELO_P_MAX). Returns False where the track has no scattering planes or fewer than three
-    measurements in either projection."""
+    docstring). The likelihood L(p) = exp(−½·`velo_scattering_nll`) on VELO_P_GRID momenta
+    even in ln p between VELO_P_MIN and VELO_P_MAX (a flat prior in ln p) gives the
+    posterior mean ⟨κ²⟩ and ⟨κ⟩ of κ = 1/p [1/MeV]. out = (p̂ = 1/√⟨κ²⟩ [MeV], the posterior
+    σ(κ) = √(⟨κ²⟩ − ⟨κ⟩²) [1/MeV], the maximum-likelihood p on the grid [MeV]). ⟨κ²⟩, not the
+    maximum, because the scattering noise is ∝ κ²: its expectation over what the hits allow.
+    Returns False (out untouched) where the track crosses no material plane between its first
+    and last hit or has fewer than three hits (the first two fix the line)."""
     scat_z = np.empty(plane_z.size)
     scat_t = np.empty(plane_z.size)
     n_scat = _scattering_planes(z[0], z[-1], x0, y0, tx, ty, z[0], plane_z, plane_x_over_x0, plane_half_x,
@@ -401,26 +402,20 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, plane_z,
             best = g
     if not math.isfinite(nll[best]):
         return False
-    ln_p = lo + best * step
-    if 0 < best < VELO_P_GRID - 1:
-        curv = nll[best - 1] - 2.0 * nll[best] + nll[best + 1]
-        if curv > 0.0:
-            ln_p += step * 0.5 * (nll[best - 1] - nll[best + 1]) / curv
-    level = nll[best] + 1.0
-    # Δ(−2 ln L) = 1 crossings, linear in ln p between grid points
-    ln_lo = lo
-    for g in range(best, 0, -1):
-        if nll[g - 1] > level:
-            ln_lo = lo + step * (g - (level - nll[g]) / (nll[g - 1] - nll[g]))
-            break
-    inv_hi = 0.0
-    for g in range(best, VELO_P_GRID - 1):
-        if nll[g + 1] > level:
-            inv_hi = math.exp(-(lo + step * (g + (level - nll[g]) / (nll[g + 1] - nll[g]))))
-            break
-    out[0] = math.exp(ln_p)
-    out[1] = math.exp(-ln_lo)
-    out[2] = inv_hi
+    w_sum = 0.0
+    k1 = 0.0
+    k2 = 0.0
+    for g in range(VELO_P_GRID):
+        w = math.exp(-0.5 * (nll[g] - nll[best])) if math.isfinite(nll[g]) else 0.0
+        kappa = math.exp(-(lo + g * step))
+        w_sum += w
+        k1 += w * kappa
+        k2 += w * kappa * kappa
+    k1 /= w_sum
+    k2 /= w_sum
+    out[0] = 1.0 / math.sqrt(k2)
+    out[1] = math.sqrt(max(k2 - k1 * k1, 0.0))
+    out[2] = math.exp(lo + best * step)
     return True
 
 
@@ -431,7 +426,7 @@ def velo_momentum_estimates(offsets, node_z, node_n_meas, node_hx, node_hy, node
                             plane_side_overlap, out):
     """`velo_momentum_estimate` of every VELO-only track of a CSR batch (lines from states
     (T, 5) at each track's first node) into out (T, 3); NaN rows for the other tracks and
-    where there is no estimate."""
+    where there is no estimate (those keep the assumption of `velo_qop_prior`)."""
     for t in range(offsets.size - 1):
         for i in range(3):
             out[t, i] = np.nan
@@ -448,12 +443,12 @@ def velo_momentum_estimates(offsets, node_z, node_n_meas, node_hx, node_hy, node
 @nb.njit(cache=True)
 def velo_momentum_prior(state, cov, estimate):
     """Replace the q/p of a VELO-only seed (state, cov 5×5 at the first hit) by the
-    multiple-scattering estimate (`velo_momentum_estimate`'s out): |q/p| = 1/p̂ with p̂ clipped
-    to [VELO_P_MIN, VELO_P_ASSUMED_MAX], the sign of the state's q/p, variance the square of
-    half the Δ(−2 ln L) = 1 interval in 1/p, no correlations."""
-    p = min(max(estimate[0], VELO_P_MIN), VELO_P_ASSUMED_MAX)
+    multiple-scattering estimate (`velo_momentum_estimate`'s out): |q/p| = 1/p̂ with p̂ at most
+    VELO_P_ASSUMED_MAX, the sign of the state's q/p, variance the posterior σ(1/p)², no
+    correlations."""
+    p = min(estimate[0], VELO_P_ASSUMED_MAX)
     qop = 1.0 / p
-    sigma = 0.5 * (estimate[1] - estimate[2])
+    sigma = estimate[1]
     if state[4] < 0.0:
         qop = -qop
     state[4] = qop
