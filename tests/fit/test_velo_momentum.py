@@ -43,10 +43,28 @@ def _estimate(m):
     big = np.full(n, 1e9)
     zero = np.zeros(n)
     out = np.empty(3)
-    ok = velo_momentum_estimate(Z, np.full(n, 2, dtype=np.int64), np.tile([1.0, 0.0], (n, 1)),
-                                np.tile([0.0, 1.0], (n, 1)), m, np.full((n, 2), SIGMA), 1.0, 2.0, TX, TY,
-                                Z.copy(), np.full(n, 0.01), big, big, zero, zero, zero, np.zeros(n, dtype=np.int64),
-                                zero, out)
+    ok = velo_momentum_estimate(
+        Z,
+        np.full(n, 2, dtype=np.int64),
+        np.tile([1.0, 0.0], (n, 1)),
+        np.tile([0.0, 1.0], (n, 1)),
+        m,
+        np.full((n, 2), SIGMA),
+        1.0,
+        2.0,
+        TX,
+        TY,
+        Z.copy(),
+        np.full(n, 0.01),
+        big,
+        big,
+        zero,
+        zero,
+        zero,
+        np.zeros(n, dtype=np.int64),
+        zero,
+        out,
+    )
     assert ok
     return out
 
