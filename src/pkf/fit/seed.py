@@ -52,6 +52,8 @@ GSF; 1.20 / 1.19 / 2.10 / 3.17 with the assumption), first-hit x/y/tx/ty pull co
 1.00 / 0.90 / 0.92). The maximum of L instead of ⟨1/p²⟩ gives χ²/ndf 1.07 and tx/ty pulls
 1.14: p̂ follows each track's downward fluctuations of scattering. The hits fix five
 parameters (the line and, through the scattering, |q/p|): ndf stays Σ dimensions − 5.
+Cost: 82 µs of CPU per VELO-only track (`seed_batch` of those 2,200 tracks: 205 ms median of 5
+interleaved rounds, 21 ms with the fixed assumption).
 
 Where `seed_batch` is not given the geometry, or a track has fewer than three hits, the seed
 q/p is the momentum *assumption* of `velo_qop_prior`: |q/p| = 1/p_assumed with p_assumed =
