@@ -382,7 +382,7 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     (backward prior 100× the seed's width for tracks that do not cross the magnet) it is
     0.999×, the q/p within 0.03σ of the assumption, as the reference Kalman fit's. The seed's
     q/p is now the tracks' multiple-scattering momentum (`pkf.fit.seed.velo_momentum_estimate`),
-    whose width (20–60 %) the GSF widens to SEED_QOP_FRACTION (100 %) as every seed's."""
+    its width ≥ √2·|q/p| (the unknown sign), above the GSF's floor SEED_QOP_FRACTION·|q/p|."""
     from pkf.fit.gsf import SEED_QOP_FRACTION
     from pkf.fit.seed import TRACK_VELO
     from pkf.fit.tracks import TrackBatch, seed_batch
@@ -404,7 +404,7 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     assert sel.sum() >= 20
     _, state, cov = result.locations["first_hit"]
     # the forward filter's prior: the seed's q/p width, at least SEED_QOP_FRACTION·|q/p| (with
-    # bremsstrahlung modelled); the seed's is the scattering estimate's (`pkf.fit.seed`), 20–60 %
+    # bremsstrahlung modelled)
     prior = np.maximum(covs[sel, 4, 4], (SEED_QOP_FRACTION * seeds[sel, 4]) ** 2)
     width = np.sqrt(cov[sel, 4, 4] / prior)
     assert 0.95 <= np.median(width) <= 1.05, np.median(width)
