@@ -44,7 +44,7 @@ class TruthSample:
                                                 self.hits["u"], self.hits["v"], self.hits["sigma_u"],
                                                 self.hits["sigma_v"])
         self.field = geometry.reconstruction_field()
-        self.seeds, self.seed_covs, self.qop_var = seed_batch(self.batch, self.field)
+        self.seeds, self.seed_covs, self.qop_var = seed_batch(self.batch, self.field, geometry)
         self.extrapolator = reference_extrapolator(geometry)
         self.beamline = straight_line_extrapolator(geometry)
 

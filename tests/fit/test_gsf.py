@@ -380,7 +380,10 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     filter started with a 10 % q/p prior that the smoothing counted: the first-hit q/p
     error was 0.05× the assumption's (median; minimum bias ν = 7.6, truth pattern). Now
     (backward prior 100× the seed's width for tracks that do not cross the magnet) it is
-    0.999×, the q/p within 0.03σ of the assumption, as the reference Kalman fit's."""
+    0.999×, the q/p within 0.03σ of the assumption, as the reference Kalman fit's. The seed's
+    q/p is now the tracks' multiple-scattering momentum (`pkf.fit.seed.velo_momentum_estimate`),
+    its width ≥ √2·|q/p| (the unknown sign), above the GSF's floor SEED_QOP_FRACTION·|q/p|."""
+    from pkf.fit.gsf import SEED_QOP_FRACTION
     from pkf.fit.seed import TRACK_VELO
     from pkf.fit.tracks import TrackBatch, seed_batch
     from pkf.pipeline.simulate import SimulationConfig, simulate_batch
@@ -394,15 +397,18 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     candidates = truth_candidates(col(hits, "event_id").astype(np.int64), layer, col(mc, "particle_id").astype(np.int64))
     batch = TrackBatch.from_candidates(geometry, candidates, layer,
                                        *(col(hits, c).astype(float) for c in ("u", "v", "sigma_u", "sigma_v")))
-    seeds, covs, _ = seed_batch(batch, geometry.reconstruction_field())
+    seeds, covs, _ = seed_batch(batch, geometry.reconstruction_field(), geometry)
     velo = batch.track_type == TRACK_VELO
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, covs)
     sel = velo & (result.status == 0)
     assert sel.sum() >= 20
     _, state, cov = result.locations["first_hit"]
-    width = np.sqrt(cov[sel, 4, 4] / covs[sel, 4, 4])
+    # the forward filter's prior: the seed's q/p width, at least SEED_QOP_FRACTION·|q/p| (with
+    # bremsstrahlung modelled)
+    prior = np.maximum(covs[sel, 4, 4], (SEED_QOP_FRACTION * seeds[sel, 4]) ** 2)
+    width = np.sqrt(cov[sel, 4, 4] / prior)
     assert 0.95 <= np.median(width) <= 1.05, np.median(width)
-    assert np.all(np.abs(state[sel, 4] - seeds[sel, 4]) < 0.2 * np.sqrt(covs[sel, 4, 4]))
+    assert np.all(np.abs(state[sel, 4] - seeds[sel, 4]) < 0.2 * np.sqrt(prior))
 
 
 def test_kl_reduction_reaches_max_components_when_distances_are_nan():

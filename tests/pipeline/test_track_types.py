@@ -11,9 +11,8 @@ import numpy as np
 import pytest
 
 from pkf.cli import main
-from pkf.fit.seed import VELO_PT_ASSUMED, VELO_QOP_PRIOR_SCALE
 from pkf.io.reader import read_table
-from pkf.io.schemas import CHI2, STATES
+from pkf.io.schemas import CHI2, PULLS, STATES
 
 FITTERS = ("parametrized", "reference", "gx2f", "gsf")
 
@@ -60,27 +59,40 @@ def test_every_fitter_fits_real_tracks_of_every_type(run):
             assert ok.mean() >= 0.995, (fitter, track_type, ok.mean(), set(chi2["status"][sel][~ok]))
 
 
-def test_velo_only_qop_is_the_momentum_assumption(run):
-    """VELO-only tracks: |q/p| stays near the assumption 1/p_assumed (p_assumed = pT_assumed/sin θ)
-    with about the prior's error, for every fitter; their χ²/ndf is not the 0.2–0.3 of an
-    unphysical scattering noise (before: median q/p·p_assumed ≈ 0.02–20, σ(q/p) ≈ 1/(100 MeV))."""
+def test_velo_only_qop_is_the_scattering_momentum_with_honest_chi2(run):
+    """VELO-only tracks: |q/p| is the momentum the seed measured from the tracks' own multiple
+    scattering (`pkf.fit.seed.velo_momentum_estimate`), which follows the true momentum, with
+    about the prior's error, for every fitter; the χ²/ndf of real tracks has mean 1 ± 0.1.
+    With the fixed assumption pT = 200 MeV (before) ln p_fit and ln p_true correlated by 0.71
+    (2,197 real VELO-only tracks of 60 events) and χ²/ndf had mean 1.19–1.20 (Kalman fitters),
+    2.1 (GX2F) and 3.2 (GSF): 1.6 below 1.5 GeV, 0.45–0.65 at 1.5–10 GeV."""
     chi2 = _columns(read_table(run, CHI2, name="chi2"))
     states = _columns(read_table(run, STATES, name="states"))
+    pulls = _columns(read_table(run, PULLS, name="pulls"))
     key = lambda e, t: e * (1 << 32) + t  # noqa: E731
     for fitter in FITTERS:
-        sel = (chi2["fitter"] == fitter) & (chi2["track_type"] == "velo") & (chi2["status"] == "ok")
+        sel = ((chi2["fitter"] == fitter) & (chi2["track_type"] == "velo") & (chi2["status"] == "ok")
+               & ~chi2["is_ghost"])
+        assert sel.sum() > 40, (fitter, sel.sum())
+        mean = np.mean(chi2["chi2_ndf"][sel])
+        assert 0.88 < mean < 1.1, (fitter, mean)
         velo_keys = key(chi2["event_id"][sel], chi2["track_id"][sel])
-        rows = ((states["fitter"] == fitter) & (states["location"] == "first_hit")
-                & np.isin(key(states["event_id"], states["track_id"]), velo_keys))
-        t = np.hypot(states["tx"][rows], states["ty"][rows])
-        p_assumed = VELO_PT_ASSUMED * np.sqrt(1 + t**2) / t
-        qop = np.abs(states["qop"][rows])
-        sigma = np.sqrt(states["c44"][rows])
-        ratio = qop * p_assumed
-        assert 0.5 < np.median(ratio) < 2.0, fitter
+        rows = ((pulls["fitter"] == fitter) & (pulls["location"] == "first_hit")
+                & np.isin(key(pulls["event_id"], pulls["track_id"]), velo_keys))
+        srows = ((states["fitter"] == fitter) & (states["location"] == "first_hit")
+                 & np.isin(key(states["event_id"], states["track_id"]), velo_keys))
+        order = np.argsort(key(states["event_id"][srows], states["track_id"][srows]))
+        pos = np.searchsorted(key(states["event_id"][srows], states["track_id"][srows])[order],
+                              key(pulls["event_id"][rows], pulls["track_id"][rows]))
+        qop = states["qop"][srows][order][pos]
+        sigma = np.sqrt(states["c44"][srows][order][pos])
+        p_fit = 1.0 / np.abs(qop)
+        p_true = pulls["p_true"][rows]
+        assert np.corrcoef(np.log(p_fit), np.log(p_true))[0, 1] > 0.6, fitter
+        assert 0.6 < np.median(p_fit / p_true) < 1.4, fitter
         if fitter != "gsf":  # the GSF writes its mode component's covariance (issue 15, deliverable 4)
-            assert 0.5 * VELO_QOP_PRIOR_SCALE < np.median(sigma * p_assumed) < 1.1 * VELO_QOP_PRIOR_SCALE, fitter
-        assert np.median(chi2["chi2_ndf"][sel & ~chi2["is_ghost"]]) > 0.5, fitter
+            # σ(q/p)² = σ(1/p)² + 2/p² (the VELO does not measure the sign, `velo_momentum_prior`)
+            assert 1.3 < np.median(sigma * p_fit) < 2.0, (fitter, np.median(sigma * p_fit))
 
 
 def test_upstream_tracks_of_the_triplet_pattern_have_honest_chi2(run):

@@ -23,7 +23,15 @@ from pkf.fit.hypothesis import ELECTRON_SEED_QOP_FRACTION, ElectronHypothesis, w
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
-from pkf.fit.seed import TRACK_LONG, pattern_seed, seed_tracks, track_type_codes
+from pkf.fit.seed import (
+    TRACK_LONG,
+    TRACK_VELO,
+    pattern_seed,
+    seed_tracks,
+    track_type_codes,
+    velo_momentum_estimates,
+    velo_momentum_seeds,
+)
 from pkf.geometry.detector import KIND_PIXEL, Geometry
 
 
@@ -224,7 +232,7 @@ class FitResult:
         return np.array(STATUS_NAMES, dtype=object)[self.status]
 
 
-def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def seed_batch(batch: TrackBatch, field, geometry: Geometry | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Seed states (T, 5) at each track's first node, seed covariances and q/p variances.
 
     The least-squares seed (`pkf.fit.seed.seed_tracks`), replaced by the pattern's estimate
@@ -240,6 +248,15 @@ def seed_batch(batch: TrackBatch, field) -> tuple[np.ndarray, np.ndarray, np.nda
                 *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64))
     if batch.pattern is not None:
         pattern_seed(seeds, covs, qop_var, track_type, batch.pattern.state, batch.pattern.qop_var)
+    if geometry is not None and np.any(track_type == TRACK_VELO):
+        planes = geometry.planes
+        estimates = np.empty((batch.n_tracks, 3))
+        velo_momentum_estimates(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+                                seeds, np.ascontiguousarray(track_type, dtype=np.int64), planes.z,
+                                planes.x_over_x0, planes.half_x, planes.half_y, planes.hole_radius,
+                                planes.hole_half_x, planes.hole_half_y, planes.side, planes.side_overlap,
+                                estimates)
+        velo_momentum_seeds(seeds, covs, estimates)
     return seeds, covs, qop_var
 
 

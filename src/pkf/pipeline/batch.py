@@ -214,7 +214,7 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
                 column(chunk, "z"), column(chunk, "sigma_u"), column(chunk, "sigma_v"))
         batch = TrackBatch.from_candidates(geometry, candidates, layer, column(chunk, "u"), column(chunk, "v"),
                                            column(chunk, "sigma_u"), column(chunk, "sigma_v"))
-        seeds, seed_covs, _ = seed_batch(batch, ctx.field_map)
+        seeds, seed_covs, _ = seed_batch(batch, ctx.field_map, geometry)
     n_tracks, track_of_hit, cand_row = candidates.n_tracks, candidates.track_of_hit, candidates.hit_row
     track_event, track_id = candidates.event_id, candidates.track_id
     hit_id = column(chunk, "hit_id", np.int64)
