@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
+from scipy.special import chdtrc, chdtri
 
 #: Kalman combination methods (docs/physics.md#the-kalman-core): the weighted mean of the
 #: forward prediction and the backward filter, the Rauch–Tung–Striebel smoother (the same
@@ -98,8 +98,8 @@ class FitOptions:
     def outlier_cuts(self) -> np.ndarray:
         """Cuts on a node's standardised χ² for 1-D and 2-D nodes: `outlier_chi2` for 1-D,
         and for 2-D the value with the same tail probability (9 → 11.83)."""
-        p_value = chi2_distribution.sf(self.outlier_chi2, 1)
-        return np.array([self.outlier_chi2, chi2_distribution.isf(p_value, 2)])
+        p_value = chdtrc(1, self.outlier_chi2)  # χ²(1) survival function (scipy.stats.chi2.sf's own)
+        return np.array([self.outlier_chi2, chdtri(2, p_value)])
 
     @classmethod
     def from_flat(cls, **options) -> FitOptions:

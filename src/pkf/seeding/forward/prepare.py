@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri
 
 from pkf.errors import InputError
 from pkf.geometry.detector import SUBDETECTORS, Geometry
@@ -108,7 +108,7 @@ def _chi2_table(pvalue: float, n: int, offset: int) -> np.ndarray:
     ndf = np.maximum(m - offset, 1)
     if pvalue <= 0.0:
         return np.full(n, np.inf)
-    return chi2_dist.isf(pvalue, ndf)
+    return chdtri(ndf, pvalue)  # = scipy.stats.chi2.isf(pvalue, ndf), without importing scipy.stats
 
 
 @nb.njit(cache=True)
