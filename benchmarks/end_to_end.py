@@ -20,7 +20,7 @@ command, so the share grows with the number of events: measure it on the accepta
 
     python benchmarks/end_to_end.py --events 200 [--pileup 7.6] [--rounds 2] \
         [--checkouts /tmp/old .] [--fitter parametrized] [--json out.json]
-    python benchmarks/end_to_end.py --dataset DATASET ...
+    python benchmarks/end_to_end.py --dataset DATASET [--cache-root DIR] ...
 """
 
 from __future__ import annotations
@@ -80,13 +80,14 @@ def main(argv=None) -> None:
     parser.add_argument("--fitter", action="append", default=None)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--cache-root", type=Path, help="keep the numba caches here between invocations")
     args = parser.parse_args(argv)
     fitters = args.fitter or ["parametrized"]
     checkouts = [c.resolve() for c in args.checkouts]
     with tempfile.TemporaryDirectory(prefix="pkf-e2e-") as tmp:
         scratch = Path(tmp)
         dataset = args.dataset or _simulate(args, scratch)
-        envs = [_env(c, scratch, i) for i, c in enumerate(checkouts)]
+        envs = [_env(c, args.cache_root or scratch, i) for i, c in enumerate(checkouts)]
         for env in envs:  # compile or load the kernels: not timed
             _run(dataset, scratch / "warm", env, fitters)
         rows = []
