@@ -230,13 +230,18 @@ def velo_qop_prior(state, cov):
     if t2 > 0.0:
         p_assumed = min(VELO_P_ASSUMED_MAX, VELO_PT_ASSUMED * math.sqrt((1.0 + t2) / t2))
     qop = 1.0 / p_assumed
-    if state[4] < 0.0:
-        qop = -qop
-    state[4] = qop
+    _put_qop_prior(state, cov, qop, VELO_QOP_PRIOR_SCALE * qop)
+
+
+@nb.njit(cache=True, inline="always")
+def _put_qop_prior(state, cov, magnitude, sigma):
+    """q/p of a seed (state 5, cov 5×5) := ±magnitude [1/MeV] with the sign of its q/p, variance
+    sigma² and no correlations with the other parameters: the VELO-only priors."""
+    state[4] = -magnitude if state[4] < 0.0 else magnitude
     for i in range(5):
         cov[i, 4] = 0.0
         cov[4, i] = 0.0
-    cov[4, 4] = (VELO_QOP_PRIOR_SCALE * qop) ** 2
+    cov[4, 4] = sigma * sigma
 
 
 @nb.njit(cache=True)
@@ -476,14 +481,7 @@ def velo_momentum_prior(state, cov, estimate):
     docstring): first-hit q/p pull core 4.95 with σ(1/p) alone, 1.07–1.09 with the sign term."""
     p = min(estimate[0], VELO_P_ASSUMED_MAX)
     qop = 1.0 / p
-    sigma = math.sqrt(estimate[1] * estimate[1] + 2.0 * qop * qop)
-    if state[4] < 0.0:
-        qop = -qop
-    state[4] = qop
-    for i in range(5):
-        cov[i, 4] = 0.0
-        cov[4, i] = 0.0
-    cov[4, 4] = sigma * sigma
+    _put_qop_prior(state, cov, qop, math.sqrt(estimate[1] * estimate[1] + 2.0 * qop * qop))
 
 
 @nb.njit(cache=True)
