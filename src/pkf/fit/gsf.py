@@ -22,8 +22,7 @@ After every plane the mixture is reduced: components with weight < `weight_cut`
 (1e−4) are dropped, then the closest pair in the symmetric Kullback–Leibler distance of
 the q/p marginals (as ACTS: d = (v_i − v_j)(1/v_j − 1/v_i) + (μ_i − μ_j)²(1/v_i + 1/v_j))
 is merged by moment matching until at most `max_components` (12) remain (nearest-
-neighbour bookkeeping keeps one reduction O(n²) in the n = 12·K components; the
-mixture is kept compact while it shrinks, `_reduce`).
+neighbour bookkeeping keeps one reduction O(n²) in the n = 12·K components).
 
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
@@ -36,8 +35,7 @@ the forward filter's final (collapsed) state. The smoothed state at node k < las
 the product of the forward *predicted* mixture (everything upstream of k) and the
 backward *filtered* mixture (node k and everything downstream): every pair (i, j) gives
 a component with weight ∝ a_i·b_j·N(μ_i; ν_j, P_i + B_j) and the Gaussian product's
-mean and covariance; pairs below the weight cut are dropped (their weights are computed
-first, the products only for the pairs kept: `_combine`) and the product is reduced
+mean and covariance; pairs below the weight cut are dropped and the product is reduced
 like any mixture — the GSF analogue of the Kalman core's weighted mean (for one
 component exactly that). At the last node the smoothed mixture *is* the forward
 filtered one, which is used as it is.
@@ -127,31 +125,6 @@ Jacobian per component, 0.24 ms for the reference Kalman fit. Sharing changes th
 states by 0.005σ (x, y, tx, ty) and 0.13σ (q/p) RMS at the first hit, up to 0.26σ in q/p
 at the last hit (the KL reduction follows small differences), with the same resolutions.
 
-Where the time goes (issue 18.2; 278 long truth tracks of an lhcb-like electron gun,
-2–50 GeV, 29 nodes each; CPU time of each stage by clock() around it, one loaded
-2-core machine, so ±15 %): before this accounting 10.2 ms per track — transport of the
-components 1.4 ms (~94 steps per track, forward and backward), material and
-Bethe–Heitler convolution 1.1 ms, 64 reductions after a convolution (64 → 12 components
-on average, after the weight cut) 2.9 ms, 30 forward × backward products (144 pairs →
-62 kept by the weight cut → 12) 4.2 ms, of which the 144 pair weights and products
-2.4 ms and their reduction 1.4 ms, updates 0.16 ms. Each pair's weight needed a full
-5×5 inverse and ten logarithms; it now takes one forward substitution of the
-equilibrated Cholesky factor and one logarithm, and only the kept pairs are inverted and
-multiplied (`_combine`). The reduction is O(n) per merge with n − 12 merges; keeping the
-mixture compact shortens every scan. Now (same sample, interleaved
-A/B against the previous kernels in alternating processes, CPU time, 3 rounds × 2:
-min 9.1 → 7.0 ms, median 10.0 → 8.1 ms per track, ×0.77 / ×0.82; node states equal up to
-rounding: the electron table of `benchmarks/electron_fits.py --events 200` is the same to
-six digits): transport 1.5 ms, material and convolution 1.2, reductions after a
-convolution 2.3, products 3.5 (pair weights and kept products 2.1, their reduction 1.1,
-output 0.3), updates 0.16 (a run at 9.2 ms). The 1 ms of issue 18 needs fewer
-reductions or fewer components to reduce, not faster scans: a reduction costs ~0.6 µs
-per merge and n − 12 merges, and transport and material alone are 2.7 ms.
-`benchmarks/fit_compare.py --fitters gsf --events 60 --rounds 3` (π gun, lhcb-like):
-new/old 0.79 (min) / 0.81 (median). Telescope (`benchmarks/vs_acts.py --events 50
---repeat 2`, electrons): 1,064 and 1,132 µs per track against ACTS's GSF 2,314 and 1,846
-in the same runs (×0.46, ×0.61); before, 1,690 against 1,610 (×1.05); pulls unchanged.
-
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
 the whole run, issue 13), and a track whose output state, covariance or χ² is not
@@ -174,16 +147,7 @@ import numpy as np
 from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import NodeStages, node_stages, scalar_update
-from pkf.physics.linalg import (
-    add_matvec5,
-    copy5,
-    copy55,
-    equilibrated_cholesky,
-    invert_spd,
-    sandwich,
-    set_identity,
-    symmetrise,
-)
+from pkf.physics.linalg import add_matvec5, copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG
@@ -356,44 +320,20 @@ def _closer(d, best_d, best, candidate):
     return best_d, best
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
-def _nearest_of(k, count, q, v, iv):
-    """(distance, index) of component k's nearest neighbour among the first `count`
-    (the first of equal distances; (inf, −1) if none is comparable)."""
-    best_d = np.inf
-    best = -1
-    for l in range(count):
-        if l != k:
-            best_d, best = _closer(_kl_from_moments(q, v, iv, k, l), best_d, best, l)
-    return best_d, best
-
-
-@nb.njit(cache=True, error_model="numpy", inline="always")
-def _move_component(w, mu, cov, moments, nearest, src, dst):
-    """Component src, its q/p moments and nearest-neighbour record into slot dst."""
-    _copy_component(w, mu, cov, src, w, mu, cov, dst)
-    for r in range(4):
-        moments[r, dst] = moments[r, src]
-    nearest[dst] = nearest[src]
-
-
 @nb.njit(cache=True, error_model="numpy")
-def _reduce(w, mu, cov, n, max_n, nearest, moments):
+def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
-    returns the new count (the components stay compact in the first slots). `moments`
-    (4, ≥ n) is scratch: the nearest distance of each component and its q/p mean,
-    variance and inverse variance, kept contiguous so that a distance costs no division
-    and no strided load. The mixture stays compact while it is reduced: the last
-    component fills the slot of the one merged away, so that every scan runs over the
-    remaining components only (64 → 12 on lhcb-like electrons: the scans shrink from 64 to
-    38 components on average). The same pairs are merged as by a scan over dead and alive
-    slots (a merge is symmetric in its two components, bitwise); only the order of the
-    surviving components, and with it the rounding of later sums over them, differs,
-    and the choice among exactly equal distances."""
+    compacts and returns the new count. `moments` (4, ≥ n) is scratch: the nearest
+    distance of each component and its q/p mean, variance and inverse variance, kept
+    contiguous so that a distance costs no division and no strided load (bitwise the same
+    merges as dividing in every distance on the (n, 5, 5) arrays, and faster). The merge loop
+    offers neighbours through `_closer` (scalars only) and keeps the merged component's and
+    each recomputed neighbour in locals, stored once."""
     if n <= max_n:
         return n
     nearest_d, q, v, iv = moments[0], moments[1], moments[2], moments[3]
     for i in range(n):
+        alive[i] = True
         nearest_d[i] = np.inf
         nearest[i] = -1
         _load_qop_moments(mu, cov, i, q, v, iv)
@@ -408,41 +348,48 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments):
                 nearest[j] = i
     count = n
     while count > max_n:
-        i = 0
-        for k in range(1, count):
-            if nearest_d[k] < nearest_d[i]:
+        i = -1
+        for k in range(n):
+            if alive[k] and (i < 0 or nearest_d[k] < nearest_d[i]):
                 i = k
         j = nearest[i]
         if j < 0:  # no comparable distance (a NaN variance): merge with any other, never stop short
-            j = 1 if i == 0 else 0
+            for k in range(n):
+                if alive[k] and k != i:
+                    j = k
+                    break
         _merge_into(w, mu, cov, i, j)
         _load_qop_moments(mu, cov, i, q, v, iv)
-        last = count - 1
+        alive[j] = False
         count -= 1
-        merged = i
-        if j != last:  # the last component fills the slot of j
-            _move_component(w, mu, cov, moments, nearest, last, j)
-            if i == last:
-                merged = j
         near_d = np.inf  # the merged component's new nearest neighbour
         near = -1
-        for k in range(count):
-            if k == merged:
+        for k in range(n):
+            if not alive[k] or k == i:
                 continue
-            d = _kl_from_moments(q, v, iv, merged, k)
+            d = _kl_from_moments(q, v, iv, i, k)
             near_d, near = _closer(d, near_d, near, k)
-            partner = nearest[k]
-            if partner == i or partner == j:  # its partner changed or is gone: search again
-                nearest_d[k], nearest[k] = _nearest_of(k, count, q, v, iv)
-            else:
-                if partner == last:  # moved into slot j
-                    nearest[k] = j
-                if d < nearest_d[k]:
-                    nearest_d[k] = d
-                    nearest[k] = merged
-        nearest_d[merged] = near_d
-        nearest[merged] = near
-    return count
+            if nearest[k] == i or nearest[k] == j:
+                # its partner changed: recompute its nearest neighbour
+                best_d = np.inf
+                best = -1
+                for l in range(n):
+                    if alive[l] and l != k:
+                        best_d, best = _closer(_kl_from_moments(q, v, iv, k, l), best_d, best, l)
+                nearest_d[k] = best_d
+                nearest[k] = best
+            elif d < nearest_d[k]:
+                nearest_d[k] = d
+                nearest[k] = i
+        nearest_d[i] = near_d
+        nearest[i] = near
+    out = 0
+    for c in range(n):
+        if alive[c]:
+            if out != c:
+                _copy_component(w, mu, cov, c, w, mu, cov, out)
+            out += 1
+    return out
 
 
 @nb.njit(cache=True, inline="always")
@@ -782,6 +729,7 @@ class MixtureMaterial(NamedTuple):
     count: np.ndarray
     nearest: np.ndarray
     moments: np.ndarray
+    alive: np.ndarray
     scratch: np.ndarray
     bh: np.ndarray
 
@@ -805,7 +753,7 @@ def _mixture_interact(actor, ext, k, direction):
     n2 = _material(ctx, k, direction, w, mu, cov, actor.count[0], w2, mu2, cov2, actor.scratch[3],
                    actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2])
     n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
-    n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.moments)
+    n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.moments, actor.alive)
     for c in range(n2):
         _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
     actor.count[0] = n2
@@ -817,12 +765,12 @@ _propagate_mixture = propagator(_mixture_transport, _mixture_interact)
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, scratch, bh):
+def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, alive, scratch, bh):
     """Transport the mixture buf[0:3] (n components) from z_from to z_to through the
     material planes in (min z, max z] (`MixtureMaterial`); buf = (w, mu, cov) × 2 working
     sets, count a 1-element scratch. Returns the new component count (0: failed)."""
     count[0] = n
-    actor = MixtureMaterial(ctx, buf, count, nearest, moments, scratch, bh)
+    actor = MixtureMaterial(ctx, buf, count, nearest, moments, alive, scratch, bh)
     if _propagate_mixture(ctx.ref, actor, z_from, z_to) != STATUS_OK:
         return 0
     return count[0]
@@ -867,143 +815,76 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     return chi2
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
-def _log_gaussian_overlap(ssum, diff, lu, scale):
-    """−2·log N(diff; 0, S) − 5·log 2π = diffᵀS⁻¹diff + log det S for the symmetric 5×5
-    S = ssum, from the equilibrated Cholesky factor (`equilibrated_cholesky`, into lu and
-    scale): one forward substitution and one logarithm of the product of the factors
-    (no inverse). NaN if S is not positive definite."""
-    if not equilibrated_cholesky(ssum, lu, scale):
-        return np.nan
-    q = 0.0
-    det = 1.0
-    for k in range(5):
-        t = diff[k] * scale[k]
-        for l in range(k):
-            t -= lu[k, l] * diff[l]
-        t /= lu[k, k]
-        diff[k] = t  # y = L⁻¹·D·diff overwrites diff
-        q += t * t
-        det *= lu[k, k] * lu[k, k] * ssum[k, k]
-    return q + math.log(det)
-
-
 @nb.njit(cache=True, error_model="numpy")
-def _pair_log_weights(fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pair, log_bw, scratch, vec):
-    """Pass 1 of `_combine`: for every pair (i, j) of positive weights whose P_i + B_j is
-    positive definite, log(a_i·b_j·N(μ_i; ν_j, P_i + B_j)) + const into pw[n] and
-    i·nb_ + j into pair[n], in pair order (`_log_gaussian_overlap`). Returns (n, the
-    largest log weight)."""
+def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, moments, alive,
+             out_mean, out_cov, scratch, vec):
+    """Product of the forward-predicted and backward-filtered mixtures at a node into
+    (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
+    component count (0 on failure)."""
     ssum = scratch[0]
+    sinv = scratch[1]
     lu = scratch[2]
+    gain = scratch[3]
     diff = vec[:5]
-    scale = vec[5:10]
-    for j in range(nb_):
-        log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else -np.inf
+    spd = vec[5:15]
     n = 0
     largest = -np.inf
     for i in range(nf):
-        if not fw[i] > 0.0:
-            continue
-        log_fw = math.log(fw[i])
         for j in range(nb_):
-            if not bw[j] > 0.0:
-                continue
             for k in range(5):
-                diff[k] = bmu[j, k] - fmu[i, k]
                 for l in range(5):
                     ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
-            overlap = _log_gaussian_overlap(ssum, diff, lu, scale)
-            if not math.isfinite(overlap):
+            if not invert_spd(ssum, sinv, lu, spd):
                 continue
-            pw[n] = log_fw + log_bw[j] - 0.5 * overlap
+            # log det of P_i + B_j from the equilibrated Cholesky factor in lu
+            logdet = 0.0
+            for k in range(5):
+                logdet += 2.0 * math.log(lu[k, k]) + math.log(ssum[k, k])
+            for k in range(5):
+                diff[k] = bmu[j, k] - fmu[i, k]
+            q = 0.0
+            for k in range(5):
+                s = 0.0
+                for l in range(5):
+                    s += sinv[k, l] * diff[l]
+                q += diff[k] * s
+            # K = P_i (P_i + B_j)⁻¹; mean = μ_i + K·diff; cov = P_i − K·P_i
+            for k in range(5):
+                for l in range(5):
+                    s = 0.0
+                    for r in range(5):
+                        s += fcov[i, k, r] * sinv[r, l]
+                    gain[k, l] = s
+            add_matvec5(fmu[i], gain, diff, pmu[n])
+            for k in range(5):
+                for l in range(5):
+                    s = fcov[i, k, l]
+                    for r in range(5):
+                        s -= gain[k, r] * fcov[i, r, l]
+                    pcov[n, k, l] = s
+            symmetrise(pcov[n])
+            ok = True
+            for k in range(5):
+                if not pcov[n, k, k] > 0.0:
+                    ok = False
+            if not ok or not (fw[i] > 0.0 and bw[j] > 0.0):
+                continue
+            pw[n] = math.log(fw[i]) + math.log(bw[j]) - 0.5 * (q + logdet)
             largest = max(largest, pw[n])
-            pair[n] = i * nb_ + j
             n += 1
-    return n, largest
-
-
-@nb.njit(cache=True, error_model="numpy")
-def _pair_product(fmu, fcov, i, bmu, bcov, j, out_mu, out_cov, scratch, vec):
-    """Pass 2 of `_combine`: the Gaussian product of forward component i and backward
-    component j — K = P_i·(P_i + B_j)⁻¹, mean μ_i + K·(ν_j − μ_i), covariance P_i − K·P_i —
-    into out_mu, out_cov. False if P_i + B_j is not positive definite or a variance of
-    the product not positive."""
-    ssum = scratch[0]
-    sinv = scratch[1]
-    gain = scratch[3]
-    diff = vec[:5]
-    for k in range(5):
-        diff[k] = bmu[j, k] - fmu[i, k]
-        for l in range(5):
-            ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
-    if not invert_spd(ssum, sinv, scratch[2], vec[5:15]):
-        return False
-    for k in range(5):
-        for l in range(5):
-            s = 0.0
-            for r in range(5):
-                s += fcov[i, k, r] * sinv[r, l]
-            gain[k, l] = s
-    add_matvec5(fmu[i], gain, diff, out_mu)
-    for k in range(5):
-        for l in range(5):
-            s = fcov[i, k, l]
-            for r in range(5):
-                s -= gain[k, r] * fcov[i, r, l]
-            out_cov[k, l] = s
-    symmetrise(out_cov)
-    for k in range(5):
-        if not out_cov[k, k] > 0.0:
-            return False
-    return True
-
-
-@nb.njit(cache=True, error_model="numpy")
-def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, moments, out_mean,
-             out_cov, scratch, vec):
-    """Product of the forward-predicted and backward-filtered mixtures at a node into
-    (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
-    component count (0 on failure).
-
-    Two passes: the pair weights first (`_pair_log_weights`), then the product's mean
-    and covariance (`_pair_product`) only for the pairs the weight cut keeps (w/Σw ≥
-    weight_cut, and the largest): on lhcb-like electrons 62 of the 144 pairs (the
-    others cost one Cholesky factor, one substitution and one logarithm). The weights
-    are those of the full inverse and ten logarithms up to rounding (1e−12 relative in
-    χ², electron table equal to six digits); the kept products are computed as before;
-    a kept pair whose product has a non-positive variance is dropped after the cut
-    instead of before (its weight stays in the cut's normalisation)."""
-    pair = nearest
-    n, largest = _pair_log_weights(fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pair, moments[0], scratch, vec)
     if n == 0:
         return 0
-    total = 0.0
-    best = 0
     for c in range(n):
         pw[c] = math.exp(pw[c] - largest)
-        total += pw[c]
-        if pw[c] > pw[best]:
-            best = c
-    m = 0
-    for c in range(n):
-        if not (pw[c] > 0.0 and pw[c] / total >= ctx.weight_cut) and c != best:
-            continue
-        i, j = pair[c] // nb_, pair[c] % nb_
-        if _pair_product(fmu, fcov, i, bmu, bcov, j, pmu[m], pcov[m], scratch, vec):
-            pw[m] = pw[c]
-            m += 1
-    if m == 0:
-        return 0
-    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov)
+    return _summarise(ctx, pw, pmu, pcov, n, nearest, moments, alive, out_mean, out_cov)
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov):
+def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
     its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
     n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut)
-    n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments)
+    n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments, alive)
     if ctx.output == OUTPUT_MEAN:
         _collapse(w, mu, cov, n, out_mean, out_cov)
     elif ctx.output == OUTPUT_MAX_WEIGHT:
@@ -1035,7 +916,7 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 
 @nb.njit(cache=True, error_model="numpy")
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
-               buf, pbuf, count, nearest, moments, scratch, bh, vec, out_state, out_cov, out_mix,
+               buf, pbuf, count, nearest, moments, alive, scratch, bh, vec, out_state, out_cov, out_mix,
                stages, lo, out_qop_var, vague_qop):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
     marginals into out_mix (nodes, K, 3) if it has rows, and the means and covariances of
@@ -1072,7 +953,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     nc = 1
     for k in range(n):
         if k > 0:
-            nc = _propagate(ctx, z[k - 1], z[k], buf, nc, count, nearest, moments, scratch, bh)
+            nc = _propagate(ctx, z[k - 1], z[k], buf, nc, count, nearest, moments, alive, scratch, bh)
             if nc == 0:
                 return STATUS_EXTRAPOLATION_FAILED, chi2, 0
         fwd_n[k] = nc
@@ -1093,7 +974,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     # ---- the last node: the forward filtered mixture is the smoothed one
     for c in range(nc):
         _copy_component(w, mu, cov, c, pw, pmu, pcov, c)
-    n_last = _summarise(ctx, pw, pmu, pcov, nc, nearest, moments, out_state[n - 1], out_cov[n - 1])
+    n_last = _summarise(ctx, pw, pmu, pcov, nc, nearest, moments, alive, out_state[n - 1], out_cov[n - 1])
     out_qop_var[n - 1] = _qop_second_moment(pw, pmu, pcov, n_last, out_state[n - 1, 4])
     if keep:
         _keep_qop_mixture(pw, pmu, pcov, n_last, out_mix[n - 1])
@@ -1117,7 +998,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     n_first = n_last
     for k in range(n - 1, -1, -1):
         if k < n - 1:
-            nc = _propagate(ctx, z[k + 1], z[k], buf, nc, count, nearest, moments, scratch, bh)
+            nc = _propagate(ctx, z[k + 1], z[k], buf, nc, count, nearest, moments, alive, scratch, bh)
             if nc == 0:
                 return STATUS_EXTRAPOLATION_FAILED, chi2, 0
         if active[k]:
@@ -1126,7 +1007,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
         if k < n - 1:
             n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
-                               nearest, moments, out_state[k], out_cov[k], scratch, vec)
+                               nearest, moments, alive, out_state[k], out_cov[k], scratch, vec)
             if n_first == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
             out_qop_var[k] = _qop_second_moment(pw, pmu, pcov, n_first, out_state[k, 4])
@@ -1163,6 +1044,7 @@ class GsfFitter(NamedTuple):
     fwd_n: np.ndarray
     nearest: np.ndarray
     moments: np.ndarray
+    alive: np.ndarray
     scratch: np.ndarray
     bh: np.ndarray
     vec: np.ndarray
@@ -1187,7 +1069,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
          np.zeros((cap, 5, 5))),
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
-        np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((4, cap)),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((4, cap)), np.zeros(cap, dtype=np.bool_),
         np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros(n_nodes),
         np.zeros(n_tracks, dtype=np.bool_) if vague_qop is None else np.ascontiguousarray(vague_qop, dtype=np.bool_))
@@ -1209,7 +1091,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     out_mix = f.out_qop_mixture[lo:hi] if f.out_qop_mixture.shape[0] > 0 else f.out_qop_mixture
     status, chi2, n_comp = _fit_track(f.ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                       f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.moments,
-                                      f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
+                                      f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
                                       f.qop_var, f.vague_qop[t])
     f.out_n_components[t] = n_comp
     return status, chi2
