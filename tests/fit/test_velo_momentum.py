@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from pkf.fit.seed import VELO_P_MAX, velo_momentum_estimate
+from pkf.fit.seed import VELO_P_MAX, MaterialPlanes, velo_momentum_estimate
 from pkf.physics.constants import MASS_PION
 from pkf.physics.materials import highland_theta0
 
@@ -54,15 +54,7 @@ def _estimate(m):
         2.0,
         TX,
         TY,
-        Z.copy(),
-        np.full(n, 0.01),
-        big,
-        big,
-        zero,
-        zero,
-        zero,
-        np.zeros(n, dtype=np.int64),
-        zero,
+        MaterialPlanes(Z.copy(), np.full(n, 0.01), big, big, zero, zero, zero, np.zeros(n, dtype=np.int64), zero),
         out,
     )
     assert ok

@@ -67,6 +67,7 @@ q/p (through the state) and returns it, with about that variance, as the track's
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -298,25 +299,45 @@ def pattern_seed(states, covs, qop_var, track_type, pattern_state, pattern_qop_v
         qop_var[t] = pattern_qop_var[t]
 
 
+class MaterialPlanes(NamedTuple):
+    """The material planes of a geometry as the compiled scattering-momentum estimate reads them
+    (`pkf.geometry.detector.Planes`' arrays: z [mm], x/X0, active area), one record."""
+
+    z: np.ndarray
+    x_over_x0: np.ndarray
+    half_x: np.ndarray
+    half_y: np.ndarray
+    hole_radius: np.ndarray
+    hole_half_x: np.ndarray
+    hole_half_y: np.ndarray
+    side: np.ndarray
+    side_overlap: np.ndarray
+
+
+def material_planes(geometry) -> MaterialPlanes:
+    """`MaterialPlanes` of a `pkf.geometry.detector.Geometry`."""
+    p = geometry.planes
+    return MaterialPlanes(p.z, p.x_over_x0, p.half_x, p.half_y, p.hole_radius, p.hole_half_x, p.hole_half_y,
+                          p.side, p.side_overlap)
+
+
 @nb.njit(cache=True)
-def _scattering_planes(z_first, z_last, x0, y0, tx, ty, z_ref, plane_z, plane_x_over_x0, plane_half_x,
-                       plane_half_y, plane_hole_radius, plane_hole_half_x, plane_hole_half_y, plane_side,
-                       plane_side_overlap, out_z, out_t):
+def _scattering_planes(z_first, z_last, x0, y0, tx, ty, z_ref, planes, out_z, out_t):
     """The material planes strictly between z_first and z_last [mm] that the straight line
     (x0, y0, tx, ty at z_ref) crosses in their active area, as in the fitters
     (`pkf.fit.propagate.plane_path_x0`): their z into out_z and path t [X0] into out_t.
     Returns their number."""
     n = 0
-    for k in range(plane_z.size):
-        zk = plane_z[k]
+    for k in range(planes.z.size):
+        zk = planes.z[k]
         if zk <= z_first or zk >= z_last or n >= out_z.size:
             continue
         x = x0 + tx * (zk - z_ref)
         y = y0 + ty * (zk - z_ref)
-        if not in_active_area(x, y, plane_half_x[k], plane_half_y[k], plane_hole_radius[k],
-                              plane_hole_half_x[k], plane_hole_half_y[k], plane_side[k], plane_side_overlap[k]):
+        if not in_active_area(x, y, planes.half_x[k], planes.half_y[k], planes.hole_radius[k],
+                              planes.hole_half_x[k], planes.hole_half_y[k], planes.side[k], planes.side_overlap[k]):
             continue
-        t = path_length_x0(plane_x_over_x0[k], tx, ty)
+        t = path_length_x0(planes.x_over_x0[k], tx, ty)
         if t <= 0.0:
             continue
         out_z[n] = zk
@@ -403,9 +424,7 @@ def velo_scattering_nll(p, z, n_meas, hx, hy, m, sigma, tx, ty, scat_z, scat_t, 
 
 
 @nb.njit(cache=True)
-def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, plane_z, plane_x_over_x0,
-                           plane_half_x, plane_half_y, plane_hole_radius, plane_hole_half_x,
-                           plane_hole_half_y, plane_side, plane_side_overlap, out):
+def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, planes, out):
     """Momentum of a VELO-only track from its own multiple scattering (see the module
     docstring). The likelihood L(p) = exp(−½·`velo_scattering_nll`) on VELO_P_GRID momenta
     even in ln p between VELO_P_MIN and VELO_P_MAX (a flat prior in ln p) gives the
@@ -414,11 +433,9 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, plane_z,
     maximum, because the scattering noise is ∝ κ²: its expectation over what the hits allow.
     Returns False (out untouched) where the track crosses no material plane between its first
     and last hit or has fewer than three hits (the first two fix the line)."""
-    scat_z = np.empty(plane_z.size)
-    scat_t = np.empty(plane_z.size)
-    n_scat = _scattering_planes(z[0], z[-1], x0, y0, tx, ty, z[0], plane_z, plane_x_over_x0, plane_half_x,
-                                plane_half_y, plane_hole_radius, plane_hole_half_x, plane_hole_half_y,
-                                plane_side, plane_side_overlap, scat_z, scat_t)
+    scat_z = np.empty(planes.z.size)
+    scat_t = np.empty(planes.z.size)
+    n_scat = _scattering_planes(z[0], z[-1], x0, y0, tx, ty, z[0], planes, scat_z, scat_t)
     if n_scat == 0 or z.size < 3:
         return False
     lo = math.log(VELO_P_MIN)
@@ -451,9 +468,7 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, plane_z,
 
 @nb.njit(cache=True)
 def velo_momentum_estimates(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, states,
-                            track_type, plane_z, plane_x_over_x0, plane_half_x, plane_half_y,
-                            plane_hole_radius, plane_hole_half_x, plane_hole_half_y, plane_side,
-                            plane_side_overlap, out):
+                            track_type, planes, out):
     """`velo_momentum_estimate` of every VELO-only track of a CSR batch (lines from states
     (T, 5) at each track's first node) into out (T, 3); NaN rows for the other tracks and
     where there is no estimate (those keep the assumption of `velo_qop_prior`)."""
@@ -466,8 +481,7 @@ def velo_momentum_estimates(offsets, node_z, node_n_meas, node_hx, node_hy, node
         hi = offsets[t + 1]
         velo_momentum_estimate(node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi], node_m[lo:hi],
                                node_sigma[lo:hi], states[t, 0], states[t, 1], states[t, 2], states[t, 3],
-                               plane_z, plane_x_over_x0, plane_half_x, plane_half_y, plane_hole_radius,
-                               plane_hole_half_x, plane_hole_half_y, plane_side, plane_side_overlap, out[t])
+                               planes, out[t])
 
 
 @nb.njit(cache=True)

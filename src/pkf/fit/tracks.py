@@ -28,6 +28,7 @@ from pkf.fit.seed import (
     TRACK_VELO,
     pattern_seed,
     seed_tracks,
+    material_planes,
     track_type_codes,
     velo_momentum_estimates,
     velo_momentum_seeds,
@@ -249,12 +250,9 @@ def seed_batch(batch: TrackBatch, field, geometry: Geometry | None = None) -> tu
     if batch.pattern is not None:
         pattern_seed(seeds, covs, qop_var, track_type, batch.pattern.state, batch.pattern.qop_var)
     if geometry is not None and np.any(track_type == TRACK_VELO):
-        planes = geometry.planes
         estimates = np.empty((batch.n_tracks, 3))
         velo_momentum_estimates(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-                                seeds, np.ascontiguousarray(track_type, dtype=np.int64), planes.z,
-                                planes.x_over_x0, planes.half_x, planes.half_y, planes.hole_radius,
-                                planes.hole_half_x, planes.hole_half_y, planes.side, planes.side_overlap,
+                                seeds, np.ascontiguousarray(track_type, dtype=np.int64), material_planes(geometry),
                                 estimates)
         velo_momentum_seeds(seeds, covs, estimates)
     return seeds, covs, qop_var
