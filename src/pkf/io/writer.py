@@ -13,9 +13,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pkf.io.atomic import PARQUET_WRITE_OPTIONS
-
-_WRITER_OPTIONS = {k: v for k, v in PARQUET_WRITE_OPTIONS.items() if k != "row_group_size"}
+from pkf.io.atomic import parquet_write_options
 
 
 class StreamingTableWriter:
@@ -29,7 +27,8 @@ class StreamingTableWriter:
         self.path = Path(path)
         self.schema = schema
         self._tmp = self.path.with_name(f".{self.path.name}.partial")
-        self._writer = pq.ParquetWriter(self._tmp, schema, **_WRITER_OPTIONS)
+        options = {k: v for k, v in parquet_write_options(schema).items() if k != "row_group_size"}
+        self._writer = pq.ParquetWriter(self._tmp, schema, **options)
         self.rows = 0
 
     def write(self, table: pa.Table) -> None:
