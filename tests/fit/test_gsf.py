@@ -356,7 +356,11 @@ def test_a_mixture_component_that_stops_in_a_module_is_dropped_not_propagated():
 def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
     """A seed covariance with no q/p variance divided by zero when the forward filter
     widened it (ZeroDivisionError, the run aborted): the widened width replaces it, as
-    for a seed with a negligible one."""
+    for a seed with a negligible one. The hits are VELO hits; the track is declared long,
+    because a VELO-only one is fitted as one Gaussian, without the widening (`pkf.fit.gsf`)."""
+    import dataclasses
+
+    from pkf.fit.seed import TRACK_LONG
     from pkf.fit.tracks import TrackBatch
 
     geometry = load_geometry("lhcb-like")
@@ -369,6 +373,7 @@ def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
     seeds[:, 4] = -1.0 / 1000.0
     seed_covs = np.tile(np.diag([100.0, 100.0, 0.01, 0.01, 0.0]), (2, 1, 1))
     seed_covs[1, 4, 4] = 1e-300
+    batch = dataclasses.replace(batch, track_type=np.full(batch.n_tracks, TRACK_LONG, dtype=np.int64))
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, seed_covs)
     assert list(result.status) == [0, 0]
     np.testing.assert_allclose(result.node_state[:rows.size], result.node_state[rows.size:], rtol=1e-9)
@@ -408,7 +413,11 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     prior = np.maximum(covs[sel, 4, 4], (SEED_QOP_FRACTION * seeds[sel, 4]) ** 2)
     width = np.sqrt(cov[sel, 4, 4] / prior)
     assert 0.95 <= np.median(width) <= 1.05, np.median(width)
-    assert np.all(np.abs(state[sel, 4] - seeds[sel, 4]) < 0.2 * np.sqrt(prior))
+    # the q/p stays the prior's: VELO-only tracks are one Gaussian now (no Bethe–Heitler
+    # convolution), whose fit lets the VELO's few mT move it a little (measured: median 0.006σ,
+    # largest 0.46σ of 30 tracks, the next 0.04σ)
+    dev = np.abs(state[sel, 4] - seeds[sel, 4]) / np.sqrt(prior)
+    assert np.median(dev) < 0.03 and np.mean(dev > 0.2) < 0.05, np.sort(dev)[-3:]
 
 
 def test_kl_reduction_reaches_max_components_when_distances_are_nan():

@@ -57,6 +57,13 @@ PIT = CDF of the smoothed q/p mixture at the true q/p, which is uniform and whos
   prior has a q/p width BACKWARD_VAGUE_QOP_SCALE (100) × the seed's, so that the smoothed
   q/p is the forward filter's: the prior and its width for VELO-only tracks. (They do not
   cross the magnet, whose linearisation needs the 10 %.)
+- A VELO-only track (``batch.track_type`` velo) is fitted as one Gaussian, without the
+  Bethe–Heitler convolution (`gsf_fitter`'s `single_gaussian`): its q/p is the seed's
+  multiple-scattering momentum (`pkf.fit.seed.velo_momentum_estimate`), which measures the
+  average scattering along the track, radiation included, and the field-free VELO gives the
+  hits no way to tell the components apart. Convolving counted the radiation twice: the
+  low-momentum components' extra scattering noise made the first-hit tx/ty pull cores
+  0.91/0.92 on the real VELO-only tracks of minimum bias (60 events at ν = 7.6, seed 31).
 - The seed's q/p comes from a fit of all hits, the magnet's measurement with a 10 %
   width: used as the forward filter's prior it was counted twice, and pulled every
   node upstream of the magnet to "no loss" (lhcb-like last-VELO-hit PIT width 1.7–1.8).
@@ -150,7 +157,7 @@ from pkf.fit.kalman import NodeStages, node_stages, scalar_update
 from pkf.physics.linalg import add_matvec5, copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
-from pkf.fit.seed import TRACK_LONG
+from pkf.fit.seed import TRACK_LONG, TRACK_VELO
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 from pkf.params.bethe_heitler import (
@@ -1028,7 +1035,9 @@ class GsfFitter(NamedTuple):
     component counts, the kept q/p mixtures (nodes, K, 3; no rows: not kept), the kept
     mixture means per stage (`stages`, no rows: not kept) and scratch for the batch's
     longest track (`gsf_fitter` allocates it), among it each node's q/p second moment
-    about its output (`qop_var`, written by `_gsf_end`). Outliers are found with
+    about its output (`qop_var`, written by `_gsf_end`), the tracks with a vague backward
+    q/p prior (`vague_qop`) and those fitted as one Gaussian (`single_gaussian`, with
+    `plain_ctx`: the context without the Bethe–Heitler convolution). Outliers are found with
     the measurement-only fallback: a mixture's covariance ("mean", "max-weight" outputs)
     can exceed the measurement variance."""
 
@@ -1052,14 +1061,19 @@ class GsfFitter(NamedTuple):
     stages: NodeStages
     qop_var: np.ndarray
     vague_qop: np.ndarray
+    plain_ctx: tuple
+    single_gaussian: np.ndarray
 
 
 def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray,
-               stages: NodeStages | None = None, vague_qop: np.ndarray | None = None) -> GsfFitter:
+               stages: NodeStages | None = None, vague_qop: np.ndarray | None = None,
+               single_gaussian: np.ndarray | None = None) -> GsfFitter:
     """The GSF of context `ctx` for `n_tracks` tracks of up to `n_nodes` nodes, keeping the
     smoothed q/p mixtures in `qop_mixture` if it has rows and the mixtures' means and
     covariances per stage in `stages` if given; `vague_qop` (n_tracks, bool): the tracks
-    whose backward prior has a vague q/p (default: none)."""
+    whose backward prior has a vague q/p (default: none); `single_gaussian` (n_tracks,
+    bool): the tracks fitted without the Bethe–Heitler convolution, one Gaussian (VELO-only
+    tracks, module docstring; default: none)."""
     mc = ctx.max_components
     k_bh = ctx.bh_coefficients.shape[1]
     cap = max(mc * max(k_bh, 1), mc * mc, 2)
@@ -1072,7 +1086,10 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((4, cap)), np.zeros(cap, dtype=np.bool_),
         np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros(n_nodes),
-        np.zeros(n_tracks, dtype=np.bool_) if vague_qop is None else np.ascontiguousarray(vague_qop, dtype=np.bool_))
+        np.zeros(n_tracks, dtype=np.bool_) if vague_qop is None else np.ascontiguousarray(vague_qop, dtype=np.bool_),
+        ctx._replace(bethe_heitler=False),
+        np.zeros(n_tracks, dtype=np.bool_) if single_gaussian is None
+        else np.ascontiguousarray(single_gaussian, dtype=np.bool_))
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -1089,7 +1106,8 @@ def _gsf_begin(f, t, seed):
 def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
     """`_fit_track` with the fitter's scratch; the component count into out_n_components."""
     out_mix = f.out_qop_mixture[lo:hi] if f.out_qop_mixture.shape[0] > 0 else f.out_qop_mixture
-    status, chi2, n_comp = _fit_track(f.ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
+    ctx = f.plain_ctx if f.single_gaussian[t] else f.ctx
+    status, chi2, n_comp = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                       f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.moments,
                                       f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
                                       f.qop_var, f.vague_qop[t])
@@ -1130,8 +1148,10 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
                                 output=OUTPUTS[mixture.output])
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
     vague = None if batch.track_type is None else batch.track_type != TRACK_LONG
+    velo_only = None if batch.track_type is None else batch.track_type == TRACK_VELO
     fitter = gsf_fitter(ctx, max_nodes(batch.offsets), batch.n_tracks,
-                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages, vague)
+                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages, vague,
+                        velo_only)
     result = GsfResult.empty(batch, n_components=fitter.out_n_components, qop_mixture=fitter.out_qop_mixture)
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
     fit_locations(result, batch, beamline_extrapolator)

@@ -40,18 +40,23 @@ filtered through the hits; the restricted likelihood of p, free of the line para
 
     −2 ln L(p) = Σ_u Σ_{k≥3} [r_k²/S_k(p) + ln S_k(p)]   (r_k, S_k the k-th innovation and its variance),
 
-is scanned on VELO_P_GRID points even in ln p over [VELO_P_MIN, VELO_P_MAX]. With a flat
-prior in ln p the seed takes p̂ = 1/√⟨1/p²⟩ (the scattering variance is ∝ 1/p²: its
-posterior mean), capped at VELO_P_ASSUMED_MAX, the sign of the least-squares estimate (a coin
-flip) and σ(q/p)² = σ(1/p)² + 2/p̂² (the posterior spread and the unknown sign,
-`velo_momentum_prior`). Measured on the 2,197 real VELO-only
-tracks of 60 minimum-bias events at ν = 7.6 (seed 31, triplet pattern, median 9 hits):
-p̂/p median 0.91, 16–84 % 0.55–1.39, corr(ln p̂, ln p) 0.82 (the assumption below: 0.80,
-0.31–2.52, 0.71); χ²/ndf mean 0.93 / 0.93 / 0.96 / 0.97 (parametrized / reference / GX2F /
-GSF; 1.20 / 1.19 / 2.10 / 3.17 with the assumption), first-hit x/y/tx/ty pull cores
-1.04 / 1.01 / 0.99–1.01 / 1.05 for the Kalman fitters, 1.05 / 1.02 / 1.02 / 1.07 for the GX2F,
-1.00 / 0.99 / 0.91 / 0.92 for the GSF. The maximum of L instead of ⟨1/p²⟩ gives χ²/ndf 1.07 and
-tx/ty pulls 1.14: p̂ follows each track's downward fluctuations of scattering. The hits fix five
+is scanned on VELO_P_GRID points even in ln p over [VELO_P_MIN, VELO_P_MAX], times a prior
+ln p ~ N(ln(VELO_PT_PRIOR/sin θ), VELO_LN_P_PRIOR_WIDTH²) (`velo_prior_centre`; the measured pT
+spectrum of these tracks: median 250 MeV, spread of ln pT 1.02). The seed takes p̂ = 1/⟨1/p⟩
+(the posterior mean of |q/p|), capped at VELO_P_ASSUMED_MAX, the sign of the least-squares
+estimate (a coin flip) and σ(q/p)² = σ(1/p)² + 2/p̂² (the posterior spread and the unknown sign,
+`velo_momentum_prior`). Measured on the 2,197 real VELO-only tracks of 60 minimum-bias events
+at ν = 7.6 (seed 31, triplet pattern, median 9 hits), parametrized / reference / GX2F / GSF:
+χ²/ndf mean 1.02 / 1.01 / 1.05 / 1.09, first-hit x/y/tx/ty pull cores 1.03 / 1.01 / 0.97–1.00 /
+1.01–1.02 (GSF 1.02 / 0.99 / 0.97 / 0.98), q/p cores 1.03–1.05. Before, with a flat prior in
+ln p and p̂ = 1/√⟨1/p²⟩: χ²/ndf 0.93 / 0.93 / 0.96 / 0.97, tx/ty cores 0.99–1.02 / 1.05–1.07 and
+0.91 / 0.92 for the GSF (which also convolved the Bethe–Heitler mixture, now skipped on VELO-only
+tracks, `pkf.fit.gsf`): the flat prior let p̂ run to the high momenta the hits cannot exclude
+(spread of ln(p̂/p) 0.67; with the prior 0.49). With the fixed assumption below: χ²/ndf 1.20 /
+1.19 / 2.10 / 3.17. The maximum of L instead of a posterior mean (flat prior) gives χ²/ndf 1.07
+and tx/ty pulls 1.14: p̂ follows each track's downward fluctuations of scattering. Above 3 GeV
+the scattering is below the hit resolution and the posterior leans to the prior's low side
+(tx/ty cores 0.66–0.86 in the 3–5, 5–10 and 10–100 GeV bins, 23 % of these tracks; 0.78–1.08 before). The hits fix five
 parameters (the line and, through the scattering, |q/p|): ndf stays Σ dimensions − 5.
 Cost: 82 µs of CPU per VELO-only track (`seed_batch` of those 2,200 tracks: 205 ms median of 5
 interleaved rounds, 21 ms with the fixed assumption).
@@ -102,6 +107,11 @@ VELO_P_ASSUMED_MAX = 50000.0
 VELO_P_MIN = 50.0
 VELO_P_MAX = 200000.0
 VELO_P_GRID = 81
+#: Prior of the scattering estimate (`velo_momentum_estimate`): ln p ~ N(ln(VELO_PT_PRIOR/sin θ),
+#: VELO_LN_P_PRIOR_WIDTH²): the median pT [MeV] and the spread of ln pT of the real VELO-only tracks
+#: of 60 minimum-bias events at ν = 7.6 (seed 31, triplet pattern; measured 250 MeV and 1.02).
+VELO_PT_PRIOR = 250.0
+VELO_LN_P_PRIOR_WIDTH = 1.0
 #: Initial slope variance of the estimate's straight-line filter (rad²): no slope information.
 _LINE_SLOPE_VARIANCE = 1.0
 #: σ(q/p)/|q/p| of the seed prior of upstream (VELO + UT) tracks, instead of SEED_QOP_FRACTION.
@@ -423,14 +433,24 @@ def velo_scattering_nll(p, z, n_meas, hx, hy, m, sigma, tx, ty, scat_z, scat_t, 
     return total
 
 
+@nb.njit(cache=True, inline="always")
+def velo_prior_centre(tx, ty):
+    """Centre [MeV] of the momentum prior of a VELO-only track of slopes tx, ty:
+    p = VELO_PT_PRIOR/sin θ (sin θ = √(t²/(1+t²)), t² = tx² + ty²), at most VELO_P_ASSUMED_MAX."""
+    t2 = tx * tx + ty * ty
+    if t2 <= 0.0:
+        return VELO_P_ASSUMED_MAX
+    return min(VELO_P_ASSUMED_MAX, VELO_PT_PRIOR * math.sqrt((1.0 + t2) / t2))
+
+
 @nb.njit(cache=True)
 def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, planes, out):
     """Momentum of a VELO-only track from its own multiple scattering (see the module
     docstring). The likelihood L(p) = exp(−½·`velo_scattering_nll`) on VELO_P_GRID momenta
-    even in ln p between VELO_P_MIN and VELO_P_MAX (a flat prior in ln p) gives the
-    posterior mean ⟨κ²⟩ and ⟨κ⟩ of κ = 1/p [1/MeV]. out = (p̂ = 1/√⟨κ²⟩ [MeV], the posterior
-    σ(κ) = √(⟨κ²⟩ − ⟨κ⟩²) [1/MeV], the maximum-likelihood p on the grid [MeV]). ⟨κ²⟩, not the
-    maximum, because the scattering noise is ∝ κ²: its expectation over what the hits allow.
+    even in ln p between VELO_P_MIN and VELO_P_MAX, times the prior ln p ~ N(ln p_c,
+    VELO_LN_P_PRIOR_WIDTH²) with p_c = `velo_prior_centre` (pT ≈ VELO_PT_PRIOR), gives the
+    posterior means ⟨κ⟩ and ⟨κ²⟩ of κ = 1/p [1/MeV]. out = (p̂ = 1/⟨κ⟩ [MeV], the posterior
+    σ(κ) = √(⟨κ²⟩ − ⟨κ⟩²) [1/MeV], the maximum of the likelihood alone on the grid [MeV]).
     Returns False (out untouched) where the track crosses no material plane between its first
     and last hit or has fewer than three hits (the first two fix the line)."""
     scat_z = np.empty(planes.z.size)
@@ -440,11 +460,20 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, planes, 
         return False
     lo = math.log(VELO_P_MIN)
     step = (math.log(VELO_P_MAX) - lo) / (VELO_P_GRID - 1)
-    nll = np.empty(VELO_P_GRID)
+    ln_centre = math.log(velo_prior_centre(tx, ty))
+    nll = np.empty(VELO_P_GRID)  # −2 ln (likelihood × prior)
     best = 0
+    best_likelihood = 0
+    best_likelihood_nll = math.inf
     for g in range(VELO_P_GRID):
-        nll[g] = velo_scattering_nll(math.exp(lo + g * step), z, n_meas, hx, hy, m, sigma, tx, ty,
-                                     scat_z, scat_t, n_scat)
+        ln_p = lo + g * step
+        data_nll = velo_scattering_nll(math.exp(ln_p), z, n_meas, hx, hy, m, sigma, tx, ty,
+                                       scat_z, scat_t, n_scat)
+        if data_nll < best_likelihood_nll:
+            best_likelihood = g
+            best_likelihood_nll = data_nll
+        pull = (ln_p - ln_centre) / VELO_LN_P_PRIOR_WIDTH
+        nll[g] = data_nll + pull * pull
         if nll[g] < nll[best]:
             best = g
     if not math.isfinite(nll[best]):
@@ -460,9 +489,9 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, planes, 
         k2 += w * kappa * kappa
     k1 /= w_sum
     k2 /= w_sum
-    out[0] = 1.0 / math.sqrt(k2)
+    out[0] = 1.0 / k1
     out[1] = math.sqrt(max(k2 - k1 * k1, 0.0))
-    out[2] = math.exp(lo + best * step)
+    out[2] = math.exp(lo + best_likelihood * step)
     return True
 
 
