@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from pkf.fit.seed import VELO_P_MAX, MaterialPlanes, velo_momentum_estimate, velo_prior_centre
+from pkf.fit.seed import VELO_P_MAX, VELO_PT_PRIOR, MaterialPlanes, momentum_at_pt, velo_momentum_estimate
 from pkf.physics.constants import MASS_PION
 from pkf.physics.materials import highland_theta0
 
@@ -83,7 +83,7 @@ def test_no_scattering_gives_no_momentum_scale():
     rng = np.random.default_rng(8)
     est = np.array([_estimate(_track(rng, math.inf)) for _ in range(30)])
     assert np.median(est[:, 2]) > 0.5 * VELO_P_MAX  # the likelihood's maximum: no scattering
-    assert np.median(est[:, 0]) > 2.0 * velo_prior_centre(TX, TY), np.median(est[:, 0])
+    assert np.median(est[:, 0]) > 2.0 * momentum_at_pt(VELO_PT_PRIOR, TX, TY), np.median(est[:, 0])
 
 
 def test_seed_batch_changes_only_velo_only_seeds():

@@ -41,7 +41,7 @@ filtered through the hits; the restricted likelihood of p, free of the line para
     −2 ln L(p) = Σ_u Σ_{k≥3} [r_k²/S_k(p) + ln S_k(p)]   (r_k, S_k the k-th innovation and its variance),
 
 is scanned on VELO_P_GRID points even in ln p over [VELO_P_MIN, VELO_P_MAX], times a prior
-ln p ~ N(ln(VELO_PT_PRIOR/sin θ), VELO_LN_P_PRIOR_WIDTH²) (`velo_prior_centre`; the measured pT
+ln p ~ N(ln(VELO_PT_PRIOR/sin θ), VELO_LN_P_PRIOR_WIDTH²) (`momentum_at_pt`; the measured pT
 spectrum of these tracks: median 250 MeV, spread of ln pT 1.02). The seed takes p̂ = 1/⟨1/p⟩
 (the posterior mean of |q/p|), capped at VELO_P_ASSUMED_MAX, the sign of the least-squares
 estimate (a coin flip) and σ(q/p)² = σ(1/p)² + 2/p̂² (the posterior spread and the unknown sign,
@@ -56,8 +56,8 @@ tracks, `pkf.fit.gsf`): the flat prior let p̂ run to the high momenta the hits 
 1.19 / 2.10 / 3.17. The maximum of L instead of a posterior mean (flat prior) gives χ²/ndf 1.07
 and tx/ty pulls 1.14: p̂ follows each track's downward fluctuations of scattering. Above 3 GeV
 the scattering is below the hit resolution and the posterior leans to the prior's low side
-(tx/ty cores 0.66–0.86 in the 3–5, 5–10 and 10–100 GeV bins, 23 % of these tracks; 0.78–1.08 before). The hits fix five
-parameters (the line and, through the scattering, |q/p|): ndf stays Σ dimensions − 5.
+(tx/ty cores 0.66–0.86 in the 3–5, 5–10 and 10–100 GeV bins, 23 % of these tracks; 0.78–1.08
+before). The hits fix five parameters (the line and, through the scattering, |q/p|): ndf stays Σ dimensions − 5.
 Cost: 82 µs of CPU per VELO-only track (`seed_batch` of those 2,200 tracks: 205 ms median of 5
 interleaved rounds, 21 ms with the fixed assumption).
 
@@ -231,16 +231,24 @@ def track_type_codes(geometry, offsets: np.ndarray, node_layer: np.ndarray) -> n
     return np.where(n_scifi > 0, TRACK_LONG, np.where(n_ut > 0, TRACK_UPSTREAM, TRACK_VELO)).astype(np.int64)
 
 
+@nb.njit(cache=True, inline="always")
+def momentum_at_pt(pt, tx, ty):
+    """Momentum [MeV] of a track of transverse momentum pt [MeV] and slopes tx, ty:
+    pt/sin θ (sin θ = √(t²/(1+t²)), t² = tx² + ty²), at most VELO_P_ASSUMED_MAX (tracks along
+    the beam). The VELO-only assumption (`velo_qop_prior`) and the centre of the scattering
+    estimate's prior (`velo_momentum_estimate`)."""
+    t2 = tx * tx + ty * ty
+    if t2 <= 0.0:
+        return VELO_P_ASSUMED_MAX
+    return min(VELO_P_ASSUMED_MAX, pt * math.sqrt((1.0 + t2) / t2))
+
+
 @nb.njit(cache=True)
 def velo_qop_prior(state, cov):
     """Replace the q/p of a VELO-only seed (state at the first hit, cov 5×5) by the momentum
     assumption of the module docstring: |q/p| = 1/p_assumed with the estimate's sign,
     variance (VELO_QOP_PRIOR_SCALE·q/p)², no correlations."""
-    t2 = state[2] * state[2] + state[3] * state[3]
-    p_assumed = VELO_P_ASSUMED_MAX
-    if t2 > 0.0:
-        p_assumed = min(VELO_P_ASSUMED_MAX, VELO_PT_ASSUMED * math.sqrt((1.0 + t2) / t2))
-    qop = 1.0 / p_assumed
+    qop = 1.0 / momentum_at_pt(VELO_PT_ASSUMED, state[2], state[3])
     _put_qop_prior(state, cov, qop, VELO_QOP_PRIOR_SCALE * qop)
 
 
@@ -433,22 +441,12 @@ def velo_scattering_nll(p, z, n_meas, hx, hy, m, sigma, tx, ty, scat_z, scat_t, 
     return total
 
 
-@nb.njit(cache=True, inline="always")
-def velo_prior_centre(tx, ty):
-    """Centre [MeV] of the momentum prior of a VELO-only track of slopes tx, ty:
-    p = VELO_PT_PRIOR/sin θ (sin θ = √(t²/(1+t²)), t² = tx² + ty²), at most VELO_P_ASSUMED_MAX."""
-    t2 = tx * tx + ty * ty
-    if t2 <= 0.0:
-        return VELO_P_ASSUMED_MAX
-    return min(VELO_P_ASSUMED_MAX, VELO_PT_PRIOR * math.sqrt((1.0 + t2) / t2))
-
-
 @nb.njit(cache=True)
 def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, planes, out):
     """Momentum of a VELO-only track from its own multiple scattering (see the module
     docstring). The likelihood L(p) = exp(−½·`velo_scattering_nll`) on VELO_P_GRID momenta
     even in ln p between VELO_P_MIN and VELO_P_MAX, times the prior ln p ~ N(ln p_c,
-    VELO_LN_P_PRIOR_WIDTH²) with p_c = `velo_prior_centre` (pT ≈ VELO_PT_PRIOR), gives the
+    VELO_LN_P_PRIOR_WIDTH²) with p_c = `momentum_at_pt`(VELO_PT_PRIOR), gives the
     posterior means ⟨κ⟩ and ⟨κ²⟩ of κ = 1/p [1/MeV]. out = (p̂ = 1/⟨κ⟩ [MeV], the posterior
     σ(κ) = √(⟨κ²⟩ − ⟨κ⟩²) [1/MeV], the maximum of the likelihood alone on the grid [MeV]).
     Returns False (out untouched) where the track crosses no material plane between its first
@@ -460,7 +458,7 @@ def velo_momentum_estimate(z, n_meas, hx, hy, m, sigma, x0, y0, tx, ty, planes, 
         return False
     lo = math.log(VELO_P_MIN)
     step = (math.log(VELO_P_MAX) - lo) / (VELO_P_GRID - 1)
-    ln_centre = math.log(velo_prior_centre(tx, ty))
+    ln_centre = math.log(momentum_at_pt(VELO_PT_PRIOR, tx, ty))
     nll = np.empty(VELO_P_GRID)  # −2 ln (likelihood × prior)
     best = 0
     best_likelihood = 0
