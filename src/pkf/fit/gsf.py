@@ -55,8 +55,14 @@ PIT = CDF of the smoothed q/p mixture at the true q/p, which is uniform and whos
   the written q/p error was 0.05× the assumption's (median; minimum bias ν = 7.6, truth
   pattern), on upstream tracks the q/p pull RMS 3.0 (reference Kalman 1.3). Their backward
   prior has a q/p width BACKWARD_VAGUE_QOP_SCALE (100) × the seed's, so that the smoothed
-  q/p is the forward filter's: the prior and its width for VELO-only tracks. (They do not
-  cross the magnet, whose linearisation needs the 10 %.)
+  q/p is the forward filter's. (They do not cross the magnet, whose linearisation needs the
+  10 %.) Not so for VELO-only tracks (`QOP_PRIOR_ONLY`): with a free q/p the backward mean
+  drifts with the VELO's weak field to momenta far from the assumption, its scattering
+  noise with it, and the first-hit tx variance came out 2.9× the reference Kalman fit's
+  (median; 10 %/90 %: 1.2×/22×; tx error 4× wider at p > 3 GeV; minimum bias ν = 7.6,
+  seed 31). They keep the 10 % backward prior (tx variance 0.99× the reference's) and
+  their smoothed q/p block is the forward prediction's — the momentum assumption and its
+  variance, uncorrelated with x, y, tx, ty (the hits carry no q/p information there).
 - A VELO-only track (``batch.track_type`` velo) is fitted as one Gaussian, without the
   Bethe–Heitler convolution (`gsf_fitter`'s `single_gaussian`): its q/p is the seed's
   multiple-scattering momentum (`pkf.fit.seed.velo_momentum_estimate`), which measures the
@@ -181,9 +187,13 @@ _CORE_TRUNCATED_VARIANCE = 1.0 - 2.0 * _CORE_WINDOW * math.exp(-0.5 * _CORE_WIND
 #: Vague prior of the backward filter (see the module docstring).
 BACKWARD_PRIOR_VARIANCES = (400.0, 400.0, 0.01, 0.01)
 BACKWARD_PRIOR_QOP_FRACTION = 0.1
-#: Backward prior of tracks that do not cross the magnet (VELO-only, upstream): q/p width
-#: this many times the seed's (module docstring).
+#: Backward prior of upstream tracks (they do not cross the magnet): q/p width this many
+#: times the seed's (module docstring).
 BACKWARD_VAGUE_QOP_SCALE = 100.0
+#: Per-track q/p treatment of the backward prior (`GsfFitter.qop_prior_kind`): the 10 %
+#: prior (long tracks), the vague one (upstream), or the 10 % prior with the smoothed q/p
+#: block replaced by the forward prediction's (VELO-only: q/p is the momentum assumption).
+QOP_MEASURED, QOP_VAGUE, QOP_PRIOR_ONLY = 0, 1, 2
 #: The forward filter's seed has a q/p width of at least this fraction of |q/p| (module docstring).
 SEED_QOP_FRACTION = 1.0
 #: "mode" output: components within this many σ (in q/p) of the mode component form the peak.
@@ -922,15 +932,44 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 
 
 @nb.njit(cache=True, error_model="numpy")
+def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, n, out_mean, out_cov):
+    """A VELO-only node (QOP_PRIOR_ONLY): the smoothed state keeps x, y, tx, ty and takes the
+    q/p mean and variance of the forward prediction (fw, fmu, fcov)[:nf] collapsed, with no
+    correlation to the others; the product mixture (pw, pmu, pcov) becomes that one
+    component (its q/p moments then are the written ones). Returns 1."""
+    qop = 0.0
+    total = 0.0
+    for c in range(nf):
+        qop += fw[c] * fmu[c, 4]
+        total += fw[c]
+    qop /= total
+    var = 0.0
+    for c in range(nf):
+        d = fmu[c, 4] - qop
+        var += fw[c] * (fcov[c, 4, 4] + d * d)
+    var /= total
+    out_mean[4] = qop
+    for i in range(4):
+        out_cov[4, i] = 0.0
+        out_cov[i, 4] = 0.0
+    out_cov[4, 4] = var
+    pw[0] = 1.0
+    copy5(out_mean, pmu[0])
+    copy55(out_cov, pcov[0])
+    return 1
+
+
+@nb.njit(cache=True, error_model="numpy")
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
                buf, pbuf, count, nearest, moments, alive, scratch, bh, vec, out_state, out_cov, out_mix,
-               stages, lo, out_qop_var, vague_qop):
+               stages, lo, out_qop_var, qop_prior_kind):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
     marginals into out_mix (nodes, K, 3) if it has rows, and the means and covariances of
     the predicted, filtered and smoothed mixtures into rows lo… of `stages` (a
     `NodeStages` with smoothed rows) if it has rows, and each node's `_qop_second_moment`
-    about its output q/p into out_qop_var (n); `vague_qop`: the backward prior's q/p width
-    is BACKWARD_VAGUE_QOP_SCALE × the seed's (a track the magnet does not measure). Returns (status, χ², number of
+    about its output q/p into out_qop_var (n); `qop_prior_kind`: QOP_VAGUE, the backward
+    prior's q/p width is BACKWARD_VAGUE_QOP_SCALE × the seed's (upstream); QOP_PRIOR_ONLY,
+    the smoothed q/p block is the forward prediction's (VELO-only). Returns (status, χ², number of
     components of the smoothed mixture at the first node)."""
     n = z.size
     w, mu, cov = buf[0], buf[1], buf[2]
@@ -999,7 +1038,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     cov[0, 4, 4] = (BACKWARD_PRIOR_QOP_FRACTION * mean[4]) ** 2
     if not cov[0, 4, 4] > 0.0:
         cov[0, 4, 4] = seed_cov[4, 4]
-    if vague_qop:
+    if qop_prior_kind == QOP_VAGUE:
         cov[0, 4, 4] = max(cov[0, 4, 4], BACKWARD_VAGUE_QOP_SCALE**2 * seed_cov[4, 4])
     nc = 1
     n_first = n_last
@@ -1017,6 +1056,9 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
                                nearest, moments, alive, out_state[k], out_cov[k], scratch, vec)
             if n_first == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+            if qop_prior_kind == QOP_PRIOR_ONLY:
+                n_first = _prior_qop_block(fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], pw, pmu, pcov, n_first,
+                                           out_state[k], out_cov[k])
             out_qop_var[k] = _qop_second_moment(pw, pmu, pcov, n_first, out_state[k, 4])
             if keep:
                 _keep_qop_mixture(pw, pmu, pcov, n_first, out_mix[k])
@@ -1035,8 +1077,8 @@ class GsfFitter(NamedTuple):
     component counts, the kept q/p mixtures (nodes, K, 3; no rows: not kept), the kept
     mixture means per stage (`stages`, no rows: not kept) and scratch for the batch's
     longest track (`gsf_fitter` allocates it), among it each node's q/p second moment
-    about its output (`qop_var`, written by `_gsf_end`), the tracks with a vague backward
-    q/p prior (`vague_qop`) and those fitted as one Gaussian (`single_gaussian`, with
+    about its output (`qop_var`, written by `_gsf_end`), each track's backward q/p prior
+    (`qop_prior_kind`: QOP_MEASURED, QOP_VAGUE, QOP_PRIOR_ONLY) and those fitted as one Gaussian (`single_gaussian`, with
     `plain_ctx`: the context without the Bethe–Heitler convolution). Outliers are found with
     the measurement-only fallback: a mixture's covariance ("mean", "max-weight" outputs)
     can exceed the measurement variance."""
@@ -1060,18 +1102,18 @@ class GsfFitter(NamedTuple):
     count: np.ndarray
     stages: NodeStages
     qop_var: np.ndarray
-    vague_qop: np.ndarray
+    qop_prior_kind: np.ndarray
     plain_ctx: tuple
     single_gaussian: np.ndarray
 
 
 def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray,
-               stages: NodeStages | None = None, vague_qop: np.ndarray | None = None,
+               stages: NodeStages | None = None, qop_prior_kind: np.ndarray | None = None,
                single_gaussian: np.ndarray | None = None) -> GsfFitter:
     """The GSF of context `ctx` for `n_tracks` tracks of up to `n_nodes` nodes, keeping the
     smoothed q/p mixtures in `qop_mixture` if it has rows and the mixtures' means and
-    covariances per stage in `stages` if given; `vague_qop` (n_tracks, bool): the tracks
-    whose backward prior has a vague q/p (default: none); `single_gaussian` (n_tracks,
+    covariances per stage in `stages` if given; `qop_prior_kind` (n_tracks, int8): each
+    track's QOP_MEASURED, QOP_VAGUE or QOP_PRIOR_ONLY (default: all measured); `single_gaussian` (n_tracks,
     bool): the tracks fitted without the Bethe–Heitler convolution, one Gaussian (VELO-only
     tracks, module docstring; default: none)."""
     mc = ctx.max_components
@@ -1086,7 +1128,8 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((4, cap)), np.zeros(cap, dtype=np.bool_),
         np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros(n_nodes),
-        np.zeros(n_tracks, dtype=np.bool_) if vague_qop is None else np.ascontiguousarray(vague_qop, dtype=np.bool_),
+        np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
+        else np.ascontiguousarray(qop_prior_kind, dtype=np.int8),
         ctx._replace(bethe_heitler=False),
         np.zeros(n_tracks, dtype=np.bool_) if single_gaussian is None
         else np.ascontiguousarray(single_gaussian, dtype=np.bool_))
@@ -1110,7 +1153,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     status, chi2, n_comp = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                       f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.moments,
                                       f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
-                                      f.qop_var, f.vague_qop[t])
+                                      f.qop_var, f.qop_prior_kind[t])
     f.out_n_components[t] = n_comp
     return status, chi2
 
@@ -1147,10 +1190,11 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
                                 output=OUTPUTS[mixture.output])
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
-    vague = None if batch.track_type is None else batch.track_type != TRACK_LONG
     velo_only = None if batch.track_type is None else batch.track_type == TRACK_VELO
+    qop_prior = None if batch.track_type is None else np.where(
+        velo_only, QOP_PRIOR_ONLY, np.where(batch.track_type != TRACK_LONG, QOP_VAGUE, QOP_MEASURED))
     fitter = gsf_fitter(ctx, max_nodes(batch.offsets), batch.n_tracks,
-                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages, vague,
+                        np.zeros((batch.z.size if keep_qop_mixtures else 0, ctx.max_components, 3)), stages, qop_prior,
                         velo_only)
     result = GsfResult.empty(batch, n_components=fitter.out_n_components, qop_mixture=fitter.out_qop_mixture)
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
