@@ -932,7 +932,7 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, n, out_mean, out_cov):
+def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
     """A VELO-only node (QOP_PRIOR_ONLY): the smoothed state keeps x, y, tx, ty and takes the
     q/p mean and variance of the forward prediction (fw, fmu, fcov)[:nf] collapsed, with no
     correlation to the others; the product mixture (pw, pmu, pcov) becomes that one
@@ -1057,7 +1057,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             if n_first == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
             if qop_prior_kind == QOP_PRIOR_ONLY:
-                n_first = _prior_qop_block(fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], pw, pmu, pcov, n_first,
+                n_first = _prior_qop_block(fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], pw, pmu, pcov,
                                            out_state[k], out_cov[k])
             out_qop_var[k] = _qop_second_moment(pw, pmu, pcov, n_first, out_state[k, 4])
             if keep:
