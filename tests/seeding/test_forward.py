@@ -412,7 +412,16 @@ def _chain(ext, s, z_from, z_to):
 
 def test_reference_trajectory_equals_parametrized_step(geometry, ext):
     """Above the table's p_min the reference trajectory is the Kalman fit's extrapolation:
-    same states, Jacobians and noise (the table localised at the last UT state)."""
+    same states, Jacobians and noise (the table localised at the last UT state), except
+    for the scattering of VELO layers crossed without a hit, which the Kalman step adds
+    (`pkf.params.transport.add_crossed_velo_layers`) and the search does not: it starts
+    at the VELO track's first hit and carries the VELO state's scattering error in its
+    own start covariance (ForwardOptions' VELO terms); with that term it found 0.6 points
+    fewer long tracks and 1.0 point more ghosts (60 minimum-bias events, ν = 7.6). So the
+    Kalman step is taken here with no layer counted as crossed."""
+    area = ext.layer_area.copy()
+    area[:, 0] = -1.0  # no point lies on a layer: no crossed-layer term
+    kalman_ext = ext._replace(layer_area=area)
     layer_z = geometry.layer_z
     sub = geometry.layer_subdetector
     velo = np.flatnonzero(sub == 0)
@@ -424,7 +433,7 @@ def test_reference_trajectory_equals_parametrized_step(geometry, ext):
         a = int(rng.choice(velo[-10:]))
         q = rng.uniform(-1.0, 1.0) / 3200.0
         s = np.array([rng.normal(0, 5), rng.normal(0, 5), rng.normal(0, 0.08), rng.normal(0, 0.06), q])
-        _, s_ut, _, _ = _chain(ext, s, layer_z[a], layer_z[f_layer[n_ut - 1]])
+        _, s_ut, _, _ = _chain(kalman_ext, s, layer_z[a], layer_z[f_layer[n_ut - 1]])
         localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
         ref_s = np.zeros((f_layer.size, 5))
         ref_f = np.zeros((f_layer.size, 5, 5))
@@ -434,7 +443,7 @@ def test_reference_trajectory_equals_parametrized_step(geometry, ext):
         assert status == TRANSPORT_OK
         prev_z, prev_s = layer_z[a], s
         for j, lay in enumerate(f_layer):
-            st, out, jac, noise = _chain(ext, prev_s, prev_z, layer_z[lay])
+            st, out, jac, noise = _chain(kalman_ext, prev_s, prev_z, layer_z[lay])
             assert st == 0
             np.testing.assert_allclose(ref_s[j], out, rtol=1e-12, atol=1e-9)
             np.testing.assert_allclose(ref_f[j], jac, rtol=1e-10, atol=1e-12)

@@ -22,7 +22,7 @@ from pkf.errors import InputError
 from pkf.geometry.detector import SUBDETECTORS, Geometry
 from pkf.io.atomic import atomic_write_json
 from pkf.params.formulas import N_EXTRAPOLATION_PARAMS, N_NOISE_PARAMS
-from pkf.params.transport import STEP_CODES, STEP_NONE, STEP_UT_TO_SCIFI, ParametrizedExtrapolator
+from pkf.params.transport import STEP_CODES, STEP_NONE, STEP_UT_TO_SCIFI, ParametrizedExtrapolator, area_record
 from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable
 
 FORMAT = "pkf-params/1"
@@ -99,7 +99,7 @@ class ParameterSet:
         return ParametrizedExtrapolator(
             geometry.layer_z.astype(np.float64), slots.layer_sub, slots.sub_first, slots.sub_last,
             slots.within_type, slots.between_type, np.ascontiguousarray(self.extrapolation, dtype=np.float64),
-            np.ascontiguousarray(self.noise, dtype=np.float64), meta, coef, *fallback,
+            np.ascontiguousarray(self.noise, dtype=np.float64), area_record(geometry), meta, coef, *fallback,
         )
 
     def check_geometry(self, geometry: Geometry, source: str) -> None:
