@@ -379,6 +379,21 @@ def test_a_seed_without_q_over_p_variance_gets_the_widened_width():
     np.testing.assert_allclose(result.node_state[:rows.size], result.node_state[rows.size:], rtol=1e-9)
 
 
+def _minbias_truth_hits(events, seed):
+    """Minimum-bias events (lhcb-like, ν = 7.6) grouped into truth tracks: the geometry,
+    the candidates, each hit's layer and its u, v, σ_u, σ_v columns."""
+    from pkf.pipeline.simulate import SimulationConfig, simulate_batch
+    from pkf.pipeline.truth_pattern import truth_candidates
+
+    geometry = load_geometry("lhcb-like")
+    config = SimulationConfig(generator="minbias", pileup=7.6, events=events, seed=seed)
+    hits, _, mc = simulate_batch(geometry, config, 0, config.events)
+    col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
+    layer = col(hits, "layer").astype(np.int64)
+    candidates = truth_candidates(col(hits, "event_id").astype(np.int64), layer, col(mc, "particle_id").astype(np.int64))
+    return geometry, candidates, layer, [col(hits, c).astype(float) for c in ("u", "v", "sigma_u", "sigma_v")]
+
+
 def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     """Issue 15: a VELO-only track's q/p is the momentum assumption of
     `pkf.fit.seed.velo_qop_prior` and its error the assumption's width. The GSF's backward
@@ -393,17 +408,9 @@ def test_velo_only_tracks_keep_the_momentum_assumption_and_its_width():
     from pkf.fit.seed import TRACK_VELO
     from pkf.fit.tracks import TrackBatch, fit_batch, seed_batch
     from pkf.physics.constants import MASS_ELECTRON
-    from pkf.pipeline.simulate import SimulationConfig, simulate_batch
-    from pkf.pipeline.truth_pattern import truth_candidates
 
-    geometry = load_geometry("lhcb-like")
-    config = SimulationConfig(generator="minbias", pileup=7.6, events=8, seed=31)
-    hits, _, mc = simulate_batch(geometry, config, 0, config.events)
-    col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
-    layer = col(hits, "layer").astype(np.int64)
-    candidates = truth_candidates(col(hits, "event_id").astype(np.int64), layer, col(mc, "particle_id").astype(np.int64))
-    batch = TrackBatch.from_candidates(geometry, candidates, layer,
-                                       *(col(hits, c).astype(float) for c in ("u", "v", "sigma_u", "sigma_v")))
+    geometry, candidates, layer, columns = _minbias_truth_hits(events=8, seed=31)
+    batch = TrackBatch.from_candidates(geometry, candidates, layer, *columns)
     seeds, covs, _ = seed_batch(batch, geometry.reconstruction_field(), geometry)
     velo = batch.track_type == TRACK_VELO
     result = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), seeds, covs)
@@ -446,17 +453,8 @@ def test_velo_only_q_over_p_is_not_moved_by_a_wrong_hit():
     21 tracks: |Δ(q/p)|/|q/p| median 5e-6, largest 4e-5; before: median 0.14, largest 1.65."""
     from pkf.fit.seed import TRACK_VELO
     from pkf.fit.tracks import TrackBatch, seed_batch
-    from pkf.pipeline.simulate import SimulationConfig, simulate_batch
-    from pkf.pipeline.truth_pattern import truth_candidates
 
-    geometry = load_geometry("lhcb-like")
-    config = SimulationConfig(generator="minbias", pileup=7.6, events=4, seed=32)
-    hits, _, mc = simulate_batch(geometry, config, 0, config.events)
-    col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
-    layer = col(hits, "layer").astype(np.int64)
-    candidates = truth_candidates(col(hits, "event_id").astype(np.int64), layer, col(mc, "particle_id").astype(np.int64))
-    u, v = col(hits, "u").astype(float), col(hits, "v").astype(float)
-    sigmas = (col(hits, "sigma_u").astype(float), col(hits, "sigma_v").astype(float))
+    geometry, candidates, layer, (u, v, *sigmas) = _minbias_truth_hits(events=4, seed=32)
     clean = TrackBatch.from_candidates(geometry, candidates, layer, u, v, *sigmas)
     velo = clean.track_type == TRACK_VELO
     first_rows = clean.hit_row[clean.offsets[:-1][velo]]

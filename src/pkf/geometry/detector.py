@@ -204,6 +204,15 @@ class Geometry:
         )
 
     @cached_property
+    def layer_plane(self) -> np.ndarray:
+        """(n_layers,) int64: the row in `planes` of each active layer."""
+        planes = self.planes
+        active = planes.layer >= 0
+        index = np.empty(self.n_layers, dtype=np.int64)
+        index[planes.layer[active]] = np.flatnonzero(active)
+        return index
+
+    @cached_property
     def field(self) -> FieldModel:
         """The analytic field model (what the simulation uses)."""
         spec = dict(self.config["field"])

@@ -185,8 +185,7 @@ def area_record(geometry: Geometry) -> np.ndarray:
     hole_radius, hole_half_x, hole_half_y [mm], side code, side_overlap [mm]), the
     arguments of `pkf.geometry.acceptance.in_active_area`."""
     planes = geometry.planes
-    active = np.flatnonzero(planes.layer >= 0)
-    index = active[np.argsort(planes.layer[active])]  # the plane of each layer
+    index = geometry.layer_plane
     return np.ascontiguousarray(np.stack([
         planes.half_x[index], planes.half_y[index], planes.hole_radius[index], planes.hole_half_x[index],
         planes.hole_half_y[index], planes.side[index].astype(np.float64), planes.side_overlap[index],
@@ -216,9 +215,6 @@ def add_crossed_velo_layers(layer_z, layer_area, pn, state, cur, nxt, jac, noise
     tx = state[2]
     ty = state[3]
     crossed = False
-    for i in range(5):
-        for j in range(5):
-            q_start[i, j] = 0.0
     for layer in range(cur + 1, nxt):
         lever = layer_z[layer] - z0
         a = layer_area[layer]
@@ -226,6 +222,9 @@ def add_crossed_velo_layers(layer_z, layer_area, pn, state, cur, nxt, jac, noise
             continue
         if not crossed:
             parametrized_noise(pn, state, 0.0, tmp)  # θ² of one plane in tmp[2, 2], tmp[3, 3]
+            for i in range(5):
+                for j in range(5):
+                    q_start[i, j] = 0.0
             crossed = True
         q_tx = tmp[2, 2]
         q_ty = tmp[3, 3]

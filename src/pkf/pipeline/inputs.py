@@ -105,8 +105,7 @@ def layer_area(geometry: Geometry) -> LayerArea:
     rectangle of x and y ranges (the strip's unmeasured coordinate may lie anywhere on it).
     """
     planes = geometry.planes
-    active = np.flatnonzero(planes.layer >= 0)
-    index = active[np.argsort(planes.layer[active])]  # the plane of each layer
+    index = geometry.layer_plane
     half_x, half_y = planes.half_x[index], planes.half_y[index]
     side, overlap = planes.side[index], planes.side_overlap[index]
     x_lo = np.where(side == SIDE_RIGHT, np.maximum(-half_x, -overlap), -half_x)

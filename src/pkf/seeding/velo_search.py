@@ -1428,10 +1428,7 @@ def velo_layer_table(geometry: Geometry, options: VeloSearchOptions | None = Non
                           & (geometry.layer_kind == KIND_PIXEL))
     velo = velo[np.argsort(geometry.layer_z[velo], kind="stable")]
     planes = geometry.planes
-    active = planes.layer >= 0
-    prow = np.full(geometry.n_layers, -1, dtype=np.int64)
-    prow[planes.layer[active]] = np.flatnonzero(active)
-    rows = prow[velo]
+    rows = geometry.layer_plane[velo]
     lt = np.zeros((velo.size, _N_LAYER_COLUMNS))
     lt[:, _L_Z] = geometry.layer_z[velo]
     lt[:, _L_HALF_X] = planes.half_x[rows]

@@ -218,9 +218,7 @@ def simulate_response(
     if stop_z is None:
         stop_z = np.full(start_z.size, np.inf)
     planes = geometry.planes
-    layer_plane = np.empty(geometry.n_layers, dtype=np.int64)
-    active = planes.layer >= 0
-    layer_plane[planes.layer[active]] = np.flatnonzero(active)
+    layer_plane = geometry.layer_plane
     env = geometry.envelope
     field = geometry.field
     expected_noise = float(np.sum(geometry.layer_noise_hits))
