@@ -6,15 +6,25 @@ Units everywhere: mm, MeV (c = 1), tesla, rad (docs/formats.md#conventions).
 import hashlib
 import os
 import sys
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-try:
-    __version__ = version("pkf")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.0.0+unknown"
-
 __all__ = ["__version__"]
+
+
+def __getattr__(name: str) -> str:
+    """``pkf.__version__``, read from the installed metadata on first use: importing
+    `importlib.metadata` takes ~65 ms, and until `pkf.__main__` runs, Ctrl-C at start-up
+    would print a traceback."""
+    if name != "__version__":
+        raise AttributeError(f"module 'pkf' has no attribute {name!r}")
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        value = version("pkf")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        value = "0.0.0+unknown"
+    globals()["__version__"] = value
+    return value
 
 
 def _configure_numba_cache() -> None:

@@ -29,6 +29,9 @@ def main() -> int:
         raise
     finally:
         signal.signal(signal.SIGINT, previous)
+    if seen:  # a library imported on the way caught the KeyboardInterrupt (a bare except) and went on
+        sys.stderr.write(_INTERRUPTED)
+        return 130
     return cli_main()
 
 

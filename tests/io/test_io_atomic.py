@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 from io_helpers import make_tables, raises_input_error
 
-from pkf.errors import InputError
+from pkf.errors import CtrlC, InputError
 from pkf.io import HITS, atomic_write_json, atomic_write_table, check_output_dir, staged_output_dir
 from pkf.io import atomic as atomic_module
 from pkf.io.writer import StreamingTableWriter
@@ -111,6 +111,20 @@ def test_staged_output_dir_exception_leaves_nothing(tmp_path, exc):
             (staging / "partial.parquet").write_bytes(b"x")
             raise exc
     assert list(tmp_path.iterdir()) == []
+
+
+def test_staged_output_dir_does_not_commit_after_a_swallowed_ctrl_c(tmp_path, monkeypatch):
+    """A library that caught the KeyboardInterrupt (a bare except) let the command run on:
+    the output must still not appear (the CLI then exits 130)."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    monkeypatch.setattr(CtrlC, "seen", True)
+    with pytest.raises(KeyboardInterrupt):
+        with staged_output_dir(out, overwrite=True) as staging:
+            (staging / "new.txt").write_text("new")
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
 
 
 def test_staged_output_dir_exception_keeps_previous_output(tmp_path):

@@ -69,12 +69,27 @@ def test_ctrl_c_stops_reconstruct_within_seconds_and_leaves_a_resumable_run(tmp_
     assert (out / "run.json").is_file()
 
 
+def _wait_until_numpy_is_loaded(proc, timeout_s=30.0):
+    """Until the child maps numpy's core library: `pkf.__main__` has its handler by then.
+    A fixed sleep (0.25 s) once landed before it on a loaded machine, or after the end."""
+    maps = Path(f"/proc/{proc.pid}/maps")
+    deadline = time.monotonic() + timeout_s
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            if "_multiarray_umath" in maps.read_text():
+                return
+        except OSError:  # no /proc here
+            time.sleep(0.25)
+            return
+        time.sleep(0.005)
+
+
 def test_ctrl_c_while_pkf_starts_exits_130_without_a_traceback(tmp_path):
     """Importing numba, scipy and the kernels takes ~1 s: Ctrl-C then used to print a traceback."""
     command = [sys.executable, "-m", "pkf", "simulate", "--out", str(tmp_path / "d"), "--events", "1"]
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), text=True,
                             preexec_fn=_as_from_a_terminal)
-    time.sleep(0.25)  # python is up, pkf.cli is being imported
+    _wait_until_numpy_is_loaded(proc)  # pkf.cli is being imported
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     # 130, or killed by SIGINT (what a shell also shows as 130): CPython ends that way when a

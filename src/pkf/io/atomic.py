@@ -27,7 +27,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pkf.errors import InputError
+from pkf.errors import CtrlC, InputError
 
 __all__ = [
     "PARQUET_WRITE_OPTIONS",
@@ -273,6 +273,7 @@ def staged_output_dir(final_path: str | os.PathLike, overwrite: bool,
     try:
         os.chmod(staging, 0o777 & ~_umask())
         yield staging
+        CtrlC.check()  # a Ctrl-C that a library swallowed on the way must not commit the output
         # Re-check: another process may have created the output meanwhile.
         check_output_dir(final, overwrite, inputs)
         if final.exists():
