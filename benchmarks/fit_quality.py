@@ -1,6 +1,6 @@
 """Fit quality on real events, per fitter × track type × momentum bin (issue 15, deliverable 5).
 
-Simulates lhcb-like minimum bias (default ν = 7.6) and reconstructs it with the triplet pattern
+Simulates lhcb-like minimum bias (default ν = 7.6; ``--generator pythia``: Pythia 8 pp events) and reconstructs it with the triplet pattern
 and the requested fitters through the CLI, exactly as a user runs it (or reads an existing run
 with --run), then tabulates for the *real* (non-ghost, MC-matched) candidates of each fitter and
 track type (``long``, ``upstream`` = VELO+UT, ``velo``; the chi2 table's ``track_type`` column,
@@ -14,8 +14,11 @@ else the hit counts, `pkf.report.metrics.track_types`), overall and in bins of t
 
 Prints one table per fitter and writes everything as JSON with --json::
 
-    python benchmarks/fit_quality.py [--events 60] [--seed 31] [--pileup 7.6] [--work DIR]
-        [--fitter parametrized --fitter reference ...] [--run RUN_DIR] [--json out.json]
+    python benchmarks/fit_quality.py [--events 60] [--seed 31] [--pileup 7.6] [--generator minbias|pythia] [--work DIR]
+        [--fitter parametrized --fitter reference ...] [--run RUN_DIR] [--species electron] [--json out.json]
+
+``--species electron`` keeps the real tracks matched to electrons only: the GSF assumes an
+electron and is judged on electrons (on pions its Bethe–Heitler tail widens the q/p error).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import pyarrow.dataset as ds
 from pkf.report.metrics import TRACK_TYPES, delta_p_over_p, lookup_sorted, pull_summary, track_types
 from pkf.report.runs import column, rows_of
 from pkf.params.gauss import gaussian_core
+from pkf.simulation.species import SPECIES
 
 FITTERS = ("parametrized", "reference", "gx2f", "gsf")
 #: True-momentum bins [GeV] (the issue's acceptance bins, plus everything below 1.5 GeV).
@@ -49,27 +53,30 @@ def _cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "pkf.cli", *args], check=True, env=os.environ.copy())
 
 
-def make_run(work: Path, events: int, seed: int, pileup: float, fitters, workers: int) -> Path:
+def make_run(work: Path, events: int, seed: int, pileup: float, fitters, workers: int,
+             generator: str = "minbias") -> Path:
     """Simulate (once) and reconstruct the sample under `work`; returns the run directory."""
-    dataset = work / f"minbias_nu{pileup}_ev{events}_s{seed}"
+    dataset = work / f"{generator}_nu{pileup}_ev{events}_s{seed}"
     if not (dataset / "meta.json").exists():
-        _cli("simulate", "--generator", "minbias", "--pileup", str(pileup), "--events", str(events),
+        _cli("simulate", "--generator", generator, "--pileup", str(pileup), "--events", str(events),
              "--seed", str(seed), "--out", str(dataset), "--overwrite")
-    run = work / "run"
+    run = work / f"run_{generator}"
     fitter_args = [a for f in fitters for a in ("--fitter", f)]
     _cli("reconstruct", str(dataset), "--out", str(run), "--overwrite", "--workers", str(workers), *fitter_args)
     return run
 
 
-def _true_momenta(dataset: Path, event: np.ndarray, particle: np.ndarray) -> np.ndarray:
-    """|p| [MeV] of each (event, particle) from the dataset's particles table; NaN if absent."""
+def _true_particles(dataset: Path, event: np.ndarray, particle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|p| [MeV] and |PDG code| of each (event, particle) from the dataset's particles table
+    (NaN and 0 if absent)."""
     t = ds.dataset(dataset / "particles.parquet" if (dataset / "particles.parquet").exists()
-                   else dataset / "particles").to_table(columns=["event_id", "particle_id", "px", "py", "pz"])
+                   else dataset / "particles").to_table(columns=["event_id", "particle_id", "pdg", "px", "py", "pz"])
     key = column(t, "event_id", np.int64) * KEY + column(t, "particle_id", np.int64)
     p = np.sqrt(column(t, "px") ** 2 + column(t, "py") ** 2 + column(t, "pz") ** 2)
+    pdg = np.abs(column(t, "pdg", np.int64))
     order = np.argsort(key)
     pos, found = lookup_sorted(key[order], event * KEY + particle)
-    return np.where(found, p[order][pos], np.nan)
+    return np.where(found, p[order][pos], np.nan), np.where(found, pdg[order][pos], 0)
 
 
 @dataclass
@@ -118,22 +125,27 @@ def _cell(real_status, real_chi2_ndf, pulls, dpp) -> dict:
     return out
 
 
-def analyse(run_dir: Path, dataset: Path | None = None) -> dict:
-    """Per fitter × track type × p bin statistics of a run (see the module docstring)."""
+def analyse(run_dir: Path, dataset: Path | None = None, species: str = "all") -> dict:
+    """Per fitter × track type × p bin statistics of a run (see the module docstring), of the
+    real tracks matched to particles of `species` (a name of `SPECIES`, or "all")."""
     run = _read_run(run_dir)
     dataset = dataset or run.dataset_path
     if run.pulls is None:
         raise SystemExit(f"{run_dir}: no pulls table (the dataset has no MC truth)")
     result = {"run": str(run_dir), "dataset": str(dataset), "location": LOCATION,
-              "p_edges_gev": [float(e) for e in P_EDGES_GEV], "fitters": {}}
+              "species": species, "p_edges_gev": [float(e) for e in P_EDGES_GEV], "fitters": {}}
     for fitter in run.fitters:
         chi2 = rows_of(run.chi2, fitter)
         real = ~column(chi2, "is_ghost", bool) & (column(chi2, "mc_particle_id", np.int64) > 0)
         chi2 = chi2.filter(real)
+        p_true, pdg = _true_particles(dataset, column(chi2, "event_id", np.int64),
+                                      column(chi2, "mc_particle_id", np.int64))
+        if species != "all":
+            chi2 = chi2.filter(pdg == SPECIES[species][0])
+            p_true = p_true[pdg == SPECIES[species][0]]
         types = track_types(chi2)
         status = np.asarray(chi2.column("status").to_pylist(), dtype=object)
         chi2_ndf = column(chi2, "chi2_ndf")
-        p_true = _true_momenta(dataset, column(chi2, "event_id", np.int64), column(chi2, "mc_particle_id", np.int64))
         # pulls (first hit) of the same tracks, aligned to the chi2 rows
         pulls_table = rows_of(run.pulls, fitter, LOCATION)
         pkey = _track_key(pulls_table)
@@ -177,7 +189,8 @@ def print_tables(result: dict) -> None:
     head = (f"{'type':9s}{'p [GeV]':>10s}{'real':>7s}{'ok %':>8s}{'χ²/ndf':>8s}"
             + "".join(f"{'pull ' + n:>12s}" for n in PULL_PARAMETERS) + f"{'δp/p %':>8s}  failures")
     for fitter, per_type in result["fitters"].items():
-        print(f"\n== {fitter} (first hit; pulls: core width/RMS; real = non-ghost matched candidates)")
+        of = "" if result["species"] == "all" else f" matched to {result['species']}s"
+        print(f"\n== {fitter} (first hit; pulls: core width/RMS; real = non-ghost matched candidates{of})")
         print(head)
         for track_type, data in per_type.items():
             rows = [("all", data["all"])] + list(zip(labels, data["bins"]))
@@ -198,18 +211,23 @@ def main(argv=None) -> int:
     parser.add_argument("--events", type=int, default=60)
     parser.add_argument("--seed", type=int, default=31)
     parser.add_argument("--pileup", type=float, default=7.6)
+    parser.add_argument("--generator", choices=("minbias", "pythia"), default="minbias",
+                        help="pkf's minimum bias or Pythia 8 pp events (needs the pythia extra)")
     parser.add_argument("--fitter", action="append", choices=FITTERS)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--work", type=Path, default=Path("/tmp/pkf-fit-quality"))
     parser.add_argument("--run", type=Path, help="analyse this existing run instead of making one")
     parser.add_argument("--dataset", type=Path, help="its dataset (default: the one run.json names)")
+    parser.add_argument("--species", choices=("all", *SPECIES), default="all",
+                        help="only the real tracks of this species (e.g. electron for the GSF)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     run = args.run
     if run is None:
         args.work.mkdir(parents=True, exist_ok=True)
-        run = make_run(args.work, args.events, args.seed, args.pileup, args.fitter or FITTERS, args.workers)
-    result = analyse(run, args.dataset)
+        run = make_run(args.work, args.events, args.seed, args.pileup, args.fitter or FITTERS, args.workers,
+                       args.generator)
+    result = analyse(run, args.dataset, args.species)
     print_tables(result)
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))

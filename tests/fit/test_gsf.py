@@ -12,6 +12,7 @@ from scipy.stats import kstest
 from pkf.fit.gsf import _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cdf
 from pkf.fit.reference import reference_extrapolator
 from pkf.fit.options import GSFOptions
+from pkf.fit.seed import TRACK_UPSTREAM
 from pkf.fit.hypothesis import with_hypothesis
 from pkf.fit.tracks import FitOptions, fit_batch
 from pkf.geometry import load_geometry, parse_geometry
@@ -563,3 +564,28 @@ def test_the_minbias_track_that_corrupted_the_heap_is_fitted():
     assert list(result.status) == [0]
     assert np.all(np.isfinite(result.node_state)) and np.all(np.einsum("nii->ni", result.node_cov) > 0.0)
     assert abs(1.0 / result.node_state[0, 4]) > 1000.0  # not the sub-GeV component that curled away
+
+
+def test_upstream_electrons_q_over_p_is_calibrated():
+    """Issue 15, upstream tracks (VELO + UT): the first-hit q/p is measured to ~15 % by the
+    VELO→UT kink, and what the electron radiated upstream of it is not observed, so the
+    posterior is the measurement convolved with the Bethe–Heitler tail. It is calibrated:
+    electron gun 0.3–6 GeV, truth tracks, upstream tracks fitted at 0.8–2 GeV (their
+    radiation tail lies inside the generated range), seeds 1–4 of 150 events: q/p pull RMS
+    1.02 / 1.05 / 0.99 / 0.95, Φ⁻¹(PIT) core 0.99 / 0.98 / 0.95 / 0.92. (A gun that ends at
+    2 GeV gives pull RMS 0.77 in the same window: the true first-hit momenta cannot exceed
+    2 GeV there, while the posterior rightly allows them — a prior the gun imposes, not an
+    over-covering fit; so this test keeps the gun's end well above the window.)"""
+    geometry = load_geometry("lhcb-like")
+    sample = TruthSample(geometry, events=150, seed=2, species="electron", particles=10, p_min=300.0,
+                         p_max=6000.0, eta_min=2.0, eta_max=5.0)
+    gsf = fit_batch_gsf(gsf_extrapolator(geometry), sample.batch, FitOptions(), sample.seeds, sample.seed_covs,
+                        sample.beamline, keep_qop_mixtures=True)
+    first = sample.batch.offsets[:-1]
+    qop = np.abs(gsf.node_state[first, 4])
+    select = (gsf.status == 0) & (sample.batch.track_type == TRACK_UPSTREAM) & (qop > 1 / 2000.0) & (qop < 1 / 800.0)
+    assert select.sum() > 200
+    _, pull, pit = _location(sample, gsf, "first_hit", select)
+    rms = np.sqrt(np.mean(pull**2))
+    assert 0.9 <= rms <= 1.15, rms
+    assert 0.85 <= _pit_width(pit) <= 1.1, _pit_width(pit)
