@@ -41,15 +41,19 @@ HERE = Path(__file__).resolve()
 BATCH_FIELDS = ("offsets", "z", "layer", "hit_row", "n_meas", "hx", "hy", "m", "sigma")
 
 
-def make_dataset(path: Path, events: int) -> None:
-    """Simulate the π gun, keep the long truth tracks and their seeds in `path` (.npz)."""
+def make_dataset(path: Path, events: int, generator: str = "gun") -> None:
+    """Simulate the π gun (``generator="minbias"``: minimum bias at ν = 7.6, seed 31), keep
+    the long truth tracks and their seeds in `path` (.npz)."""
     sys.path.insert(0, str(HERE.parents[1] / "tests" / "fit"))
     from fit_helpers import TruthSample
 
     from pkf.geometry import load_geometry
 
-    sample = TruthSample(load_geometry("lhcb-like"), events=events, seed=101, particles=10,
-                         p_min=2000.0, p_max=100000.0, eta_min=2.0, eta_max=5.0)
+    if generator == "minbias":
+        sample = TruthSample(load_geometry("lhcb-like"), events=events, seed=31, generator="minbias", pileup=7.6)
+    else:
+        sample = TruthSample(load_geometry("lhcb-like"), events=events, seed=101, particles=10,
+                             p_min=2000.0, p_max=100000.0, eta_min=2.0, eta_max=5.0)
     long = np.flatnonzero(sample.long_tracks())
     b = sample.batch
     nodes = np.concatenate([np.arange(b.offsets[t], b.offsets[t + 1]) for t in long])

@@ -20,8 +20,8 @@ def telescope_without_material():
 class TruthSample:
     """Hits of a gun sample grouped into truth tracks, ready to fit."""
 
-    def __init__(self, geometry, events, seed=1, **gun):
-        config = SimulationConfig(generator="gun", events=events, seed=seed, **gun)
+    def __init__(self, geometry, events, seed=1, generator="gun", **gun):
+        config = SimulationConfig(generator=generator, events=events, seed=seed, **gun)
         hits, particles, mc = simulate_batch(geometry, config, 0, events)
         self.geometry = geometry
         col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731

@@ -76,12 +76,14 @@ import numpy as np
 from pkf.fit.driver import register_fitter
 from pkf.fit.extrapolator import extrapolate
 from pkf.physics.linalg import (
+    LANES,
     add_matvec5,
     copy5,
     copy55,
-    invert_spd_ldl,
+    invert_spd_ldl_lane,
     invert_spd_triangular,
     matmul55,
+    matmul_noise,
     transport_info,
     matvec5,
     matvec5_t,
@@ -92,7 +94,7 @@ from pkf.physics.linalg import (
     zero55,
 )
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.jit import NO_REFCOUNT
+from pkf.jit import NO_REFCOUNT, stack_array
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -232,11 +234,11 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_reference, ref,
               pred, pred_cov, filt, filt_cov, jac, noise, smoother, out_state, out_cov,
-              work, mats, vec5, perm):
+              work, mats, vec5, perm, info_at, info_vec_at):
     """One forward + backward + combination pass over the n nodes of one track.
 
-    Arrays pred…noise/ref are per-node scratch (first n rows used); out_state/out_cov
-    receive the optimal states. Returns (status code, track χ²).
+    Arrays pred…noise/ref and info_at/info_vec_at are per-node scratch (first n rows
+    used); out_state/out_cov receive the optimal states. Returns (status code, track χ²).
     """
     n = z.size
     lin = vec5[:5]
@@ -283,32 +285,37 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
         status = _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5, perm)
     else:
         status = _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac,
-                                               noise, out_state, out_cov, mats, vec5)
+                                               noise, out_state, out_cov, mats, vec5, info_at, info_vec_at)
     return status, chi2
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac, noise,
-                                 out_state, out_cov, mats, vec5):
+                                 out_state, out_cov, mats, vec5, info_at, info_vec_at):
     """Backward information filter and weighted-mean combination (see module docstring),
-    with y relative to the forward prediction at each node (δ = x − x_p)."""
+    with y relative to the forward prediction at each node (δ = x − x_p).
+
+    Two passes: the filter, downstream → upstream, keeps each node's (Y, y) in
+    info_at/info_vec_at; then `_combine_nodes` forms the weighted means, LANES nodes at a
+    time. Bitwise the states of one pass that combines at each node before moving on (the
+    same operations on the same numbers), and the same outputs on failure: the nodes
+    downstream of the first failure (in the filter's order) are written, no others."""
     info = mats[2]  # Y
     info_vec = vec5[5:10]  # y of δ_k = x_k − x_p,k
-    spd_vec = vec5[10:20]
     shift = vec5[20:25]
     vec5 = vec5[:5]
     zero5(info_vec)
     a = mats[3]
-    inv = mats[4]
     tmp = mats[0]
     tmp2 = mats[1]
-    lu = mats[5]
     zero55(info)
+    status = STATUS_OK
+    lowest = 0  # the lowest node whose (Y, y) is known
     for k in range(n - 1, -1, -1):
         if active[k]:  # the residuals m − h·x_p enter
             add_node_information(info, info_vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], pred[k])
-        if not _combine(pred[k], pred_cov[k], info, info_vec, out_state[k], out_cov[k], inv, a, lu, vec5, spd_vec):
-            return STATUS_NOT_POSITIVE_DEFINITE
+        copy55(info, info_at[k])
+        copy5(info_vec, info_vec_at[k])
         if k == 0:
             break
         # propagate to node k−1: δ_k = F·δ_k−1 + a + w with a = F·(x_p,k−1 − x_f,k−1) (as
@@ -316,7 +323,7 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
         for i in range(5):
             vec5[i] = pred[k - 1, i] - filt[k - 1, i]
         matvec5(jac[k], vec5, shift)
-        matmul55(info, noise[k], a)
+        matmul_noise(info, noise[k], a)
         for i in range(5):
             a[i, i] += 1.0
         for i in range(5):
@@ -326,30 +333,70 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
             info_vec[i] = s
         copy55(info, tmp)
         if not _solve_general(a, tmp, info_vec):  # M·Y, M·(y − Y·a)
-            return STATUS_NOT_POSITIVE_DEFINITE
+            status = STATUS_NOT_POSITIVE_DEFINITE
+            lowest = k
+            break
         # Y ← Fᵀ·(M·Y)·F, y ← Fᵀ·M·(y − Y·a)
         transport_information(jac[k], tmp, info_vec, info, tmp2, vec5)
-    return STATUS_OK
+    if not _combine_nodes(lowest, n, pred, pred_cov, info_at, info_vec_at, out_state, out_cov):
+        return STATUS_NOT_POSITIVE_DEFINITE
+    return status
 
 
-@nb.njit(cache=True, inline="always")
-def _combine(x_p, p, info, info_vec, out_state, out_cov, p_inv, a, work, res, dinv):
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _combine_nodes(lo, hi, x_p, p, info, info_vec, out_state, out_cov):
     """The weighted mean of the forward prediction (x_p, P) and the backward filtered
-    information (Y, y) on δ = x − x_p at one node, in information form (paper §3):
-    C = (P⁻¹ + Y)⁻¹ and x = x_p + C·y. Two LDLᵀ inverses (`invert_spd_ldl`); a, work
-    (5×5), res (5, unused) and dinv (≥ 5) are scratch. False if P or P⁻¹ + Y is not
-    positive definite."""
-    if not invert_spd_ldl(p, p_inv, work, dinv):
-        return False
-    for i in range(5):
-        for j in range(5):
-            a[i, j] = p_inv[i, j] + info[i, j]
-    if not invert_spd_ldl(a, out_cov, work, dinv):
-        return False
-    add_matvec5(x_p, out_cov, info_vec, out_state)
-    for i in range(5):
-        if not out_cov[i, i] > 0.0:
-            return False
+    information (Y, y) on δ = x − x_p at nodes hi−1 … lo (paper §3, in information form):
+    C = (P⁻¹ + Y)⁻¹ and x = x_p + C·y, LANES nodes at a time (lane l: node base + l) with
+    the vectorised L·D·Lᵀ inverses (`invert_spd_ldl_lane`), each lane bitwise what
+    `invert_spd_ldl` gives. Writes out_state/out_cov downstream → upstream, and stops at the
+    first node where P or P⁻¹ + Y is not positive definite (nothing written there) or C has
+    a diagonal element ≤ 0 (written there): returns False then."""
+    p_lanes = stack_array((5, 5, LANES))
+    y_lanes = stack_array((5, 5, LANES))
+    c_lanes = stack_array((5, 5, LANES))
+    x_lanes = stack_array((5, LANES))
+    v_lanes = stack_array((5, LANES))
+    bad_pivot = stack_array((LANES,))
+    bad_diag = stack_array((LANES,))
+    top = hi
+    while top > lo:
+        base = max(lo, top - LANES)
+        count = top - base
+        for l in range(count):
+            k = base + l
+            for i in range(5):
+                x_lanes[i, l] = x_p[k, i]
+                v_lanes[i, l] = info_vec[k, i]
+                for j in range(5):
+                    p_lanes[i, j, l] = p[k, i, j]
+                    y_lanes[i, j, l] = info[k, i, j]
+        for l in range(min(count, LANES)):  # one SIMD loop over the lanes (count ≤ LANES: no overlap)
+            bad_pivot[l] = 0.0
+            invert_spd_ldl_lane(p_lanes, c_lanes, bad_pivot, l)  # P⁻¹
+            for i in range(5):
+                for j in range(5):
+                    p_lanes[i, j, l] = c_lanes[i, j, l] + y_lanes[i, j, l]
+            invert_spd_ldl_lane(p_lanes, c_lanes, bad_pivot, l)  # C = (P⁻¹ + Y)⁻¹
+            bad = 0.0
+            for i in range(5):  # x = x_p + C·y (`add_matvec5`); diag(C) > 0
+                s = x_lanes[i, l]
+                for k in range(5):
+                    s += c_lanes[i, k, l] * v_lanes[k, l]
+                x_lanes[i, l] = s
+                bad = bad if c_lanes[i, i, l] > 0.0 else 1.0
+            bad_diag[l] = bad
+        for l in range(count - 1, -1, -1):
+            k = base + l
+            if bad_pivot[l] != 0.0:
+                return False
+            for i in range(5):
+                out_state[k, i] = x_lanes[i, l]
+                for j in range(5):
+                    out_cov[k, i, j] = c_lanes[i, j, l]
+            if bad_diag[l] != 0.0:
+                return False
+        top = base
     return True
 
 
@@ -417,6 +464,8 @@ class KalmanFitter(NamedTuple):
     vec5: np.ndarray
     perm: np.ndarray
     stages: NodeStages
+    info: np.ndarray
+    info_vec: np.ndarray
 
 
 def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN,
@@ -428,7 +477,8 @@ def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOO
                         np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5, 5)),
                         np.empty((n_nodes, 5, 5)), np.empty((6, 5, 5)),
                         np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64),
-                        node_stages(0) if stages is None else stages)
+                        node_stages(0) if stages is None else stages, np.empty((n_nodes, 5, 5)),
+                        np.empty((n_nodes, 5)))
 
 
 @nb.njit(cache=True, inline="always")
@@ -447,7 +497,8 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
     for it in range(max(1, f.n_iterations)):
         status, chi2 = _fit_once(f.ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.have_reference[0],
                                  f.ref, f.pred, f.pred_cov, f.filt, f.filt_cov, f.jac, f.noise,
-                                 f.smoother, out_state, out_cov, f.work, f.mats, f.vec5, f.perm)
+                                 f.smoother, out_state, out_cov, f.work, f.mats, f.vec5, f.perm, f.info,
+                                 f.info_vec)
         if status != STATUS_OK:
             break
         for k in range(z.size):
