@@ -241,41 +241,52 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     used); out_state/out_cov receive the optimal states. Returns (status code, track χ²).
     """
     n = z.size
-    lin = vec5[:5]
+    lin = stack_array((5,))  # scratch on the stack (see `_backward_information_filter`)
     chi2 = 0.0
-    tmp = mats[0]
+    tmp = stack_array((5, 5))
+    step_work = stack_array((6, 5, 5))
     # ---- forward filter
     # The seed prior: at the pattern estimate, or, once a previous fit exists, at its
     # optimal first state, so that the prior biases nothing at convergence.
-    copy5(ref[0] if use_reference else seed, pred[0])
-    copy55(seed_cov, pred_cov[0])
+    # The state and covariance being filtered stay on the stack from node to node
+    # (`state`, `cov`); each node's prediction and filtered state are copied out.
+    state = stack_array((5,))
+    cov = stack_array((5, 5))
+    copy5(ref[0] if use_reference else seed, state)
+    copy55(seed_cov, cov)
     for k in range(n):
         if k > 0:
             if use_reference:
                 copy5(ref[k - 1], lin)
             else:
-                copy5(filt[k - 1], lin)
-            status = extrapolate(ext, lin, z[k - 1], z[k], pred[k], jac[k], noise[k], work)
+                copy5(state, lin)
+            status = extrapolate(ext, lin, z[k - 1], z[k], pred[k], jac[k], noise[k], step_work)
             if status != STATUS_OK:
                 return status, chi2
             if use_reference:
                 for i in range(5):
                     s = 0.0
                     for j in range(5):
-                        s += jac[k, i, j] * (filt[k - 1, j] - lin[j])
+                        s += jac[k, i, j] * (state[j] - lin[j])
                     pred[k, i] += s
-            transport_cov(jac[k], filt_cov[k - 1], tmp, pred_cov[k])
+            transport_cov(jac[k], cov, tmp, cov)
             for i in range(5):
                 for j in range(5):
-                    pred_cov[k, i, j] += noise[k, i, j]
-        copy5(pred[k], filt[k])
-        copy55(pred_cov[k], filt_cov[k])
+                    cov[i, j] += noise[k, i, j]
+            copy5(pred[k], state)
+        else:
+            copy5(state, pred[0])
+        copy55(cov, pred_cov[k])
         if active[k]:
             for j in range(n_meas[k]):
-                increment, s = scalar_update(filt[k], filt_cov[k], hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
+                increment, s = scalar_update(state, cov, hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
                 if not s > 0.0:
+                    copy5(state, filt[k])
+                    copy55(cov, filt_cov[k])
                     return STATUS_NOT_POSITIVE_DEFINITE, chi2
                 chi2 += increment
+        copy5(state, filt[k])
+        copy55(cov, filt_cov[k])
     if smoother == SMOOTHER_NONE:
         for k in range(n):
             copy5(filt[k], out_state[k])
@@ -300,14 +311,15 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
     time. Bitwise the states of one pass that combines at each node before moving on (the
     same operations on the same numbers), and the same outputs on failure: the nodes
     downstream of the first failure (in the filter's order) are written, no others."""
-    info = mats[2]  # Y
-    info_vec = vec5[5:10]  # y of δ_k = x_k − x_p,k
-    shift = vec5[20:25]
-    vec5 = vec5[:5]
+    # scratch on the stack: no array of the caller's aliases it, so LLVM keeps it in registers
+    info = stack_array((5, 5))  # Y
+    info_vec = stack_array((5,))  # y of δ_k = x_k − x_p,k
+    shift = stack_array((5,))
+    vec5 = stack_array((5,))
+    a = stack_array((5, 5))
+    tmp = stack_array((5, 5))
+    tmp2 = stack_array((5, 5))
     zero5(info_vec)
-    a = mats[3]
-    tmp = mats[0]
-    tmp2 = mats[1]
     zero55(info)
     status = STATUS_OK
     lowest = 0  # the lowest node whose (Y, y) is known
