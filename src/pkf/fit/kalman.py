@@ -234,7 +234,7 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_reference, ref,
               pred, pred_cov, filt, filt_cov, jac, noise, smoother, out_state, out_cov,
-              work, mats, vec5, perm, info_at, info_vec_at):
+              mats, vec5, perm, info_at, info_vec_at):
     """One forward + backward + combination pass over the n nodes of one track.
 
     Arrays pred…noise/ref and info_at/info_vec_at are per-node scratch (first n rows
@@ -471,7 +471,6 @@ class KalmanFitter(NamedTuple):
     filt_cov: np.ndarray
     jac: np.ndarray
     noise: np.ndarray
-    work: np.ndarray
     mats: np.ndarray
     vec5: np.ndarray
     perm: np.ndarray
@@ -487,7 +486,7 @@ def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOO
     return KalmanFitter(ext, int(n_iterations), int(smoother), False, np.zeros(1, dtype=np.bool_),
                         np.empty((n_nodes, 5)), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)),
                         np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5, 5)),
-                        np.empty((n_nodes, 5, 5)), np.empty((6, 5, 5)),
+                        np.empty((n_nodes, 5, 5)),
                         np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64),
                         node_stages(0) if stages is None else stages, np.empty((n_nodes, 5, 5)),
                         np.empty((n_nodes, 5)))
@@ -509,7 +508,7 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
     for it in range(max(1, f.n_iterations)):
         status, chi2 = _fit_once(f.ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.have_reference[0],
                                  f.ref, f.pred, f.pred_cov, f.filt, f.filt_cov, f.jac, f.noise,
-                                 f.smoother, out_state, out_cov, f.work, f.mats, f.vec5, f.perm, f.info,
+                                 f.smoother, out_state, out_cov, f.mats, f.vec5, f.perm, f.info,
                                  f.info_vec)
         if status != STATUS_OK:
             break
