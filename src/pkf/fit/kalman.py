@@ -24,7 +24,9 @@ Per iteration:
    a′ = a_k + F·x_p,k−1 − x_p,k = F·(x_p,k−1 − x_f,k−1) (x_p,k = a_k + F·x_f,k−1).
 3. Optimal state at every node = weighted mean of the forward prediction and the
    backward filtered state (paper §3): C = (P⁻¹ + Y)⁻¹, x = x_p + C·y (y on δ), with
-   L·D·Lᵀ inverses (`invert_spd_ldl`); the backward step's
+   L·D·Lᵀ inverses; the backward filter keeps each node's (Y, y), and the weighted means
+   are formed afterwards, LANES = 8 nodes at a time in SIMD lanes (`_combine_nodes`,
+   `invert_spd_ldl_lane`: lane by lane bitwise `invert_spd_ldl`). The backward step's
    M·Y and M·(y − Y·a) come from one solve with I + Y·Q (`_solve_general`).
    `SMOOTHER_RTS` computes the same states with the Rauch–Tung–Striebel smoother
    instead; a test checks they agree.
@@ -46,12 +48,27 @@ the same false-removal probability as `--outlier-chi2` for 1-D nodes (9 → 11.8
 outlier node gets no update (its filtered state is the prediction) but still receives
 an optimal state.
 
-Speed (parametrized, one pass, no outlier removal, 3,390 π-gun long tracks / 86,806
-nodes, the compiled track loop alone, CPU time, min of 15 repeats, best of 3 alternating
-rounds on the shared 2-core machine, `benchmarks/fit_core.py`):
-full fit 885 ns/node (1,216 before the δ-form backward filter, the L·D·Lᵀ inverses,
-the single-division update and the structured transports), forward filter 354 (433),
-backward filter + combination 531 (783).
+Speed (parametrized, one pass, no outlier removal, the compiled track loop alone, CPU
+time, min of 7 repeats, 3 rounds alternating with the checkout before issue 18's changes,
+on the shared 2-core machine under load, `benchmarks/fit_core.py`). Minimum-bias long
+tracks (``--sample minbias``: 8,907 tracks / 257,055 nodes): full fit 660–758 ns/node
+(before: 925–1,149; ×0.66–0.74 in each round), forward filter 408–440 (544–640), backward
+filter + combination 252–339 (343–509). π-gun long tracks (3,390 / 86,806 nodes): full
+523–559 (675–907; ×0.58–0.81), forward 282–397 (314–402), backward + combination
+126–277 (353–505). Every output is bitwise what it was. What did it: the combination as
+one SIMD loop over 8 nodes (119 → 50 ns/node alone; the ~20 ns of it that remain are the
+gathers into lanes), the state and covariance being filtered and the backward filter's
+Y on the stack (`pkf.jit.stack_array`: kept in registers, no aliasing with the node
+arrays; the forward filter ×0.93, the backward ×0.9), Y·Q and Fᵀ·A·F without their
+exact zeros (`matmul_noise`, `transport_info`). Where the rest goes (minimum bias, per
+node): the extrapolation ~130 ns (`pkf.params.transport`), the forward update ~110, the
+backward step ~200, the combination ~50; and the 12 % of long tracks below the UT→SciFi
+table's p_min of 3 GeV take its RK4 fallback through the field map, ~2,000 ns/node on
+those tracks, ~165 ns/node averaged over all (a table down to 1.5 GeV, LHCb's p_min,
+would remove it). Both filters are chains of dependent steps, each waiting for the last
+(the update's division, the elimination's five pivots): one track at a time is
+latency-bound, and the backward step in SIMD lanes over the columns of its products
+gained only 5 % (not kept). The next step is several tracks in SIMD lanes at once.
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
@@ -456,8 +473,9 @@ class KalmanFitter(NamedTuple):
     """The Kalman core as a fitter of `pkf.fit.driver.fit_tracks`: the extrapolator
     context, the number of passes (the 2nd and later linearise around the previous
     optimal states), the combination (SMOOTHER_*), per-node scratch for the batch's
-    longest track (`kalman_fitter` allocates it), and `stages`, where each track's
-    predicted and filtered states go after its last fit (zero rows: nowhere)."""
+    longest track (`kalman_fitter` allocates it; info/info_vec: the backward filter's
+    (Y, y) at each node), and `stages`, where each track's predicted and filtered states
+    go after its last fit (zero rows: nowhere)."""
 
     ext: tuple
     n_iterations: int

@@ -4,6 +4,11 @@ Plain loops over small float64 arrays (numba unrolls them); every function write
 arrays the caller owns, so the per-node work allocates nothing. Inverses of symmetric
 positive-definite matrices go through a Cholesky factorisation and report failure
 instead of returning garbage for a non-positive-definite matrix.
+
+Structured variants (`transport_cov`, `transport_info`, `matmul_noise`) leave out the
+terms that are exact zeros of a known Jacobian or noise structure and are bitwise the
+dense products. `invert_spd_ldl_lane` is `invert_spd_ldl` for one lane of a stack of
+matrices, written out for SIMD loops over the lanes (`pkf.physics.lanes_codegen`).
 """
 
 from __future__ import annotations
