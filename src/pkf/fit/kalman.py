@@ -137,9 +137,14 @@ def node_stages(n_nodes: int, smoothed: bool = False) -> NodeStages:
     """A `NodeStages` record for `n_nodes` nodes (NaN until a fit writes them; 0: not kept),
     with smoothed rows if `smoothed`."""
     n_smoothed = n_nodes if smoothed else 0
-    return NodeStages(np.full((n_nodes, 5), np.nan), np.full((n_nodes, 5, 5), np.nan),
-                      np.full((n_nodes, 5), np.nan), np.full((n_nodes, 5, 5), np.nan),
-                      np.full((n_smoothed, 5), np.nan), np.full((n_smoothed, 5, 5), np.nan))
+    return NodeStages(
+        np.full((n_nodes, 5), np.nan),
+        np.full((n_nodes, 5, 5), np.nan),
+        np.full((n_nodes, 5), np.nan),
+        np.full((n_nodes, 5, 5), np.nan),
+        np.full((n_smoothed, 5), np.nan),
+        np.full((n_smoothed, 5, 5), np.nan),
+    )
 
 
 @nb.njit(cache=True, inline="always")
@@ -249,9 +254,34 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_reference, ref,
-              pred, pred_cov, filt, filt_cov, jac, noise, smoother, out_state, out_cov,
-              mats, vec5, perm, info_at, info_vec_at):
+def _fit_once(
+    ext,
+    z,
+    n_meas,
+    hx,
+    hy,
+    m,
+    sigma,
+    active,
+    seed,
+    seed_cov,
+    use_reference,
+    ref,
+    pred,
+    pred_cov,
+    filt,
+    filt_cov,
+    jac,
+    noise,
+    smoother,
+    out_state,
+    out_cov,
+    mats,
+    vec5,
+    perm,
+    info_at,
+    info_vec_at,
+):
     """One forward + backward + combination pass over the n nodes of one track.
 
     Arrays pred…noise/ref and info_at/info_vec_at are per-node scratch (first n rows
@@ -312,14 +342,50 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     if smoother == SMOOTHER_RTS:
         status = _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5, perm)
     else:
-        status = _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac,
-                                               noise, out_state, out_cov, mats, vec5, info_at, info_vec_at)
+        status = _backward_information_filter(
+            n,
+            n_meas,
+            hx,
+            hy,
+            m,
+            sigma,
+            active,
+            pred,
+            pred_cov,
+            filt,
+            jac,
+            noise,
+            out_state,
+            out_cov,
+            mats,
+            vec5,
+            info_at,
+            info_vec_at,
+        )
     return status, chi2
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac, noise,
-                                 out_state, out_cov, mats, vec5, info_at, info_vec_at):
+def _backward_information_filter(
+    n,
+    n_meas,
+    hx,
+    hy,
+    m,
+    sigma,
+    active,
+    pred,
+    pred_cov,
+    filt,
+    jac,
+    noise,
+    out_state,
+    out_cov,
+    mats,
+    vec5,
+    info_at,
+    info_vec_at,
+):
     """Backward information filter and weighted-mean combination (see module docstring),
     with y relative to the forward prediction at each node (δ = x − x_p).
 
@@ -497,17 +563,31 @@ class KalmanFitter(NamedTuple):
     info_vec: np.ndarray
 
 
-def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN,
-                  stages: NodeStages | None = None) -> KalmanFitter:
+def kalman_fitter(
+    ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN, stages: NodeStages | None = None
+) -> KalmanFitter:
     """The Kalman fitter of extrapolator context `ext` with scratch for tracks of up to
     `n_nodes` nodes; it keeps the predicted and filtered states in `stages` if given."""
-    return KalmanFitter(ext, int(n_iterations), int(smoother), False, np.zeros(1, dtype=np.bool_),
-                        np.empty((n_nodes, 5)), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)),
-                        np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5, 5)),
-                        np.empty((n_nodes, 5, 5)),
-                        np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64),
-                        node_stages(0) if stages is None else stages, np.empty((n_nodes, 5, 5)),
-                        np.empty((n_nodes, 5)))
+    return KalmanFitter(
+        ext,
+        int(n_iterations),
+        int(smoother),
+        False,
+        np.zeros(1, dtype=np.bool_),
+        np.empty((n_nodes, 5)),
+        np.empty((n_nodes, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((6, 5, 5)),
+        np.empty(25),
+        np.empty(5, dtype=np.int64),
+        node_stages(0) if stages is None else stages,
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5)),
+    )
 
 
 @nb.njit(cache=True, inline="always")
@@ -524,10 +604,34 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
     status = STATUS_OK
     chi2 = 0.0
     for it in range(max(1, f.n_iterations)):
-        status, chi2 = _fit_once(f.ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.have_reference[0],
-                                 f.ref, f.pred, f.pred_cov, f.filt, f.filt_cov, f.jac, f.noise,
-                                 f.smoother, out_state, out_cov, f.mats, f.vec5, f.perm, f.info,
-                                 f.info_vec)
+        status, chi2 = _fit_once(
+            f.ext,
+            z,
+            n_meas,
+            hx,
+            hy,
+            m,
+            sigma,
+            active,
+            seed,
+            seed_cov,
+            f.have_reference[0],
+            f.ref,
+            f.pred,
+            f.pred_cov,
+            f.filt,
+            f.filt_cov,
+            f.jac,
+            f.noise,
+            f.smoother,
+            out_state,
+            out_cov,
+            f.mats,
+            f.vec5,
+            f.perm,
+            f.info,
+            f.info_vec,
+        )
         if status != STATUS_OK:
             break
         for k in range(z.size):
