@@ -41,15 +41,27 @@ HERE = Path(__file__).resolve()
 BATCH_FIELDS = ("offsets", "z", "layer", "hit_row", "n_meas", "hx", "hy", "m", "sigma")
 
 
-def make_dataset(path: Path, events: int) -> None:
-    """Simulate the π gun, keep the long truth tracks and their seeds in `path` (.npz)."""
+def make_dataset(path: Path, events: int, generator: str = "gun") -> None:
+    """Simulate the π gun (``generator="minbias"``: minimum bias at ν = 7.6, seed 31), keep
+    the long truth tracks and their seeds in `path` (.npz)."""
     sys.path.insert(0, str(HERE.parents[1] / "tests" / "fit"))
     from fit_helpers import TruthSample
 
     from pkf.geometry import load_geometry
 
-    sample = TruthSample(load_geometry("lhcb-like"), events=events, seed=101, particles=10,
-                         p_min=2000.0, p_max=100000.0, eta_min=2.0, eta_max=5.0)
+    if generator == "minbias":
+        sample = TruthSample(load_geometry("lhcb-like"), events=events, seed=31, generator="minbias", pileup=7.6)
+    else:
+        sample = TruthSample(
+            load_geometry("lhcb-like"),
+            events=events,
+            seed=101,
+            particles=10,
+            p_min=2000.0,
+            p_max=100000.0,
+            eta_min=2.0,
+            eta_max=5.0,
+        )
     long = np.flatnonzero(sample.long_tracks())
     b = sample.batch
     nodes = np.concatenate([np.arange(b.offsets[t], b.offsets[t + 1]) for t in long])
@@ -72,16 +84,20 @@ def _fit_function(name: str, geometry):
 
     if name == "reference":
         from pkf.fit.tracks import fit_batch
+
         return reference_extrapolator(geometry), fit_batch
     if name == "parametrized":
         from pkf.fit.tracks import fit_batch
         from pkf.params.parameter_set import shipped_parameters
+
         return shipped_parameters(geometry).extrapolator(geometry), fit_batch
     if name == "gx2f":
         from pkf.fit.gx2f import fit_batch_gx2f
+
         return reference_extrapolator(geometry), fit_batch_gx2f
     if name == "gsf":
         from pkf.fit.gsf import fit_batch_gsf, gsf_extrapolator
+
         return gsf_extrapolator(geometry), fit_batch_gsf
     raise ValueError(name)
 
@@ -108,16 +124,26 @@ def worker(data: Path, fitters: list[str], repeat: int) -> dict:
             t0 = time.process_time()
             result = fit(ext, batch, options, seeds, covs)
             times.append(time.process_time() - t0)
-        digest = hashlib.sha256(np.ascontiguousarray(result.node_state).tobytes()
-                                + np.ascontiguousarray(result.node_cov).tobytes()).hexdigest()
+        digest = hashlib.sha256(
+            np.ascontiguousarray(result.node_state).tobytes() + np.ascontiguousarray(result.node_cov).tobytes()
+        ).hexdigest()
         out[name] = {"cpu_s": times, "hash": digest}
     return out
 
 
 def run_checkout(checkout: Path, data: Path, fitters: list[str], repeat: int, cache: str) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout / "src"), NUMBA_CACHE_DIR=cache)
-    cmd = [sys.executable, str(HERE), "--worker", "--data", str(data), "--fitters", ",".join(fitters),
-           "--repeat", str(repeat)]
+    cmd = [
+        sys.executable,
+        str(HERE),
+        "--worker",
+        "--data",
+        str(data),
+        "--fitters",
+        ",".join(fitters),
+        "--repeat",
+        str(repeat),
+    ]
     done = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -168,10 +194,12 @@ def main() -> None:
         row["ratio_median"] = row["new"]["median"] / row["old"]["median"]
         row["identical"] = hashes["old"][f] == hashes["new"][f]
         summary["fitters"][f] = row
-        print(f"{f:<13} old {row['old']['min']:8.0f} / {row['old']['median']:8.0f}   "
-              f"new {row['new']['min']:8.0f} / {row['new']['median']:8.0f}   "
-              f"new/old {row['ratio_min']:.3f} / {row['ratio_median']:.3f}   "
-              f"states {'identical' if row['identical'] else 'DIFFER'}")
+        print(
+            f"{f:<13} old {row['old']['min']:8.0f} / {row['old']['median']:8.0f}   "
+            f"new {row['new']['min']:8.0f} / {row['new']['median']:8.0f}   "
+            f"new/old {row['ratio_min']:.3f} / {row['ratio_median']:.3f}   "
+            f"states {'identical' if row['identical'] else 'DIFFER'}"
+        )
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2) + "\n")
 

@@ -1,7 +1,8 @@
 """Kernel-only speed of the Kalman core: the compiled track loop alone, ns per node.
 
-Fits the tracks of `benchmarks/fit_compare.py`'s dataset (``--data``, made by it: a
-lhcb-like π gun, long truth tracks and their seeds) once per repeat with one pass and no
+Fits the tracks of `benchmarks/fit_compare.py`'s dataset (``--data``, made by it if absent:
+a lhcb-like π gun, or with ``--sample minbias`` 40 minimum-bias events at ν = 7.6, long
+truth tracks and their seeds) once per repeat with one pass and no
 outlier removal, with the weighted-mean combination ("full") and without it ("forward":
 the forward filter only; full − forward = backward filter + combination). No Python around
 the loop (no result allocation, no beamline), so differences between checkouts are those
@@ -10,12 +11,13 @@ per node. Compare checkouts by running it alternately with each on PYTHONPATH (a
 NUMBA_CACHE_DIR):
 
     python benchmarks/fit_core.py [--fitters parametrized,reference] [--repeat 15] \
-        [--data /tmp/fit-compare-pigun-300.npz]
+        [--sample pigun|minbias] [--data /tmp/fit-compare-pigun-300.npz] [--json out.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -71,21 +73,39 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fitters", default="parametrized")
     parser.add_argument("--repeat", type=int, default=15)
-    parser.add_argument("--data", type=Path, default=Path("/tmp/fit-compare-pigun-300.npz"))
+    parser.add_argument("--sample", choices=("pigun", "minbias"), default="pigun")
+    parser.add_argument("--data", type=Path, default=None, help="dataset .npz (default /tmp/fit-compare-<sample>.npz)")
+    parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
+    if args.data is None:
+        args.data = Path(
+            "/tmp/fit-compare-pigun-300.npz" if args.sample == "pigun" else "/tmp/fit-compare-minbias-40.npz"
+        )
     if not args.data.is_file():
-        fit_compare.make_dataset(args.data, 300)
+        if args.sample == "pigun":
+            fit_compare.make_dataset(args.data, 300)
+        else:
+            fit_compare.make_dataset(args.data, 40, generator="minbias")
     d = np.load(args.data)
     batch = TrackBatch(*(d[f] for f in fit_compare.BATCH_FIELDS))
     geometry = load_geometry("lhcb-like")
+    results = {"data": str(args.data), "tracks": int(batch.n_tracks), "nodes": int(batch.z.size), "fitters": {}}
     for name in args.fitters.split(","):
         ext, _ = fit_compare._fit_function(name, geometry)
         full = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_WEIGHTED_MEAN, args.repeat)
         forward = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_NONE, args.repeat)
+        results["fitters"][name] = {"full_ns_per_node": full, "forward_ns_per_node": forward}
         print(
             f"{name:<13} {batch.z.size} nodes  ns/node: full {full:6.0f}  forward {forward:6.0f}  "
             f"backward+combination {full - forward:6.0f}"
         )
+    fitters = results["fitters"]
+    if "parametrized" in fitters and "reference" in fitters:
+        ratio = fitters["reference"]["full_ns_per_node"] / fitters["parametrized"]["full_ns_per_node"]
+        results["reference_over_parametrized_full"] = ratio
+        print(f"reference/parametrized (full): {ratio:.1f}")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -22,9 +22,46 @@ the kernels compile as usual, slower and with the same results.
 
 from __future__ import annotations
 
-from numba.core import options as _numba_options
+import math
 
-__all__ = ["NO_REFCOUNT"]
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.core import options as _numba_options
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array, populate_array
+
+__all__ = ["NO_REFCOUNT", "stack_array"]
 
 #: keyword arguments of ``numba.njit`` for non-allocating kernels (empty if unsupported)
 NO_REFCOUNT: dict = {"_nrt": False} if hasattr(getattr(_numba_options, "DefaultOptions", None), "_nrt") else {}
+
+
+@intrinsic
+def stack_array(typingctx, shape):
+    """A C-contiguous float64 array of the literal `shape` (a tuple of int literals) on the
+    stack of the compiled function (one ``alloca`` in its entry block, uninitialised). It
+    needs no reference counting, so `NO_REFCOUNT` kernels can create it, and it aliases no
+    other array, so LLVM may keep its elements in registers and vectorise over them
+    (`pkf.fit.kalman`'s lanes). It must not outlive the function: never return or store it."""
+    if not isinstance(shape, types.BaseTuple) or not all(isinstance(n, types.IntegerLiteral) for n in shape):
+        return None
+    dims = tuple(n.literal_value for n in shape)
+    array_type = types.Array(types.float64, len(dims), "C")
+
+    def codegen(context, builder, signature, args):
+        double = context.get_value_type(types.float64)
+        intp = context.get_value_type(types.intp)
+        data = cgutils.alloca_once(builder, ir.ArrayType(double, math.prod(dims)))
+        strides = [8 * math.prod(dims[i + 1 :]) for i in range(len(dims))]
+        array = make_array(array_type)(context, builder)
+        populate_array(
+            array,
+            data=builder.bitcast(data, double.as_pointer()),
+            shape=[ir.Constant(intp, n) for n in dims],
+            strides=[ir.Constant(intp, s) for s in strides],
+            itemsize=ir.Constant(intp, 8),
+            meminfo=None,
+        )
+        return array._getvalue()
+
+    return array_type(shape), codegen

@@ -20,8 +20,8 @@ def telescope_without_material():
 class TruthSample:
     """Hits of a gun sample grouped into truth tracks, ready to fit."""
 
-    def __init__(self, geometry, events, seed=1, **gun):
-        config = SimulationConfig(generator="gun", events=events, seed=seed, **gun)
+    def __init__(self, geometry, events, seed=1, generator="gun", **gun):
+        config = SimulationConfig(generator=generator, events=events, seed=seed, **gun)
         hits, particles, mc = simulate_batch(geometry, config, 0, events)
         self.geometry = geometry
         col = lambda t, c: t.column(c).to_numpy(zero_copy_only=False)  # noqa: E731
@@ -40,9 +40,15 @@ class TruthSample:
         pos = np.searchsorted(key[order], event * (1 << 24) + particle)
         pos = np.minimum(pos, key.size - 1)
         self.production_qop = np.where(particle > 0, p_qop[order][pos], np.nan)
-        self.batch = TrackBatch.from_candidates(geometry, truth_candidates(event, self.layer, particle), self.layer,
-                                                self.hits["u"], self.hits["v"], self.hits["sigma_u"],
-                                                self.hits["sigma_v"])
+        self.batch = TrackBatch.from_candidates(
+            geometry,
+            truth_candidates(event, self.layer, particle),
+            self.layer,
+            self.hits["u"],
+            self.hits["v"],
+            self.hits["sigma_u"],
+            self.hits["sigma_v"],
+        )
         self.field = geometry.reconstruction_field()
         self.seeds, self.seed_covs, self.qop_var = seed_batch(self.batch, self.field, geometry)
         self.extrapolator = reference_extrapolator(geometry)
@@ -50,7 +56,9 @@ class TruthSample:
 
     def fit(self, batch=None, **options):
         batch = batch or self.batch
-        return fit_batch(self.extrapolator, batch, FitOptions.from_flat(**options), self.seeds, self.seed_covs, self.beamline)
+        return fit_batch(
+            self.extrapolator, batch, FitOptions.from_flat(**options), self.seeds, self.seed_covs, self.beamline
+        )
 
     def first_hit_pulls(self, result, select=None):
         """Pulls (n, 5) at the first hit of the tracks with status ok (and `select`)."""

@@ -135,3 +135,47 @@ def test_structured_transports_are_bitwise_the_dense_ones(rng):
             matmul55_tn(f, tmp, want)
             transport_info(f, c, np.zeros((5, 5)), got)
             assert want.tobytes() == got.tobytes()
+
+
+def test_noise_product_is_bitwise_the_dense_one(rng):
+    """matmul_noise = matmul55 bitwise, for a block-structured noise (x–tx and y–ty blocks,
+    q/p untouched: paper eq. 11) and a dense one (the structured path only for the former)."""
+    from pkf.physics.linalg import is_block_noise, matmul55, matmul_noise
+
+    block = np.zeros((5, 5))
+    block[np.ix_([0, 2], [0, 2])] = [[4e-3, -2e-5], [-2e-5, 3e-7]]
+    block[np.ix_([1, 3], [1, 3])] = [[5e-3, 1e-5], [1e-5, 2e-7]]
+    dense = _spd(rng, np.array([0.05, 0.05, 1e-4, 1e-4, 1e-7]))
+    assert is_block_noise(block) and not is_block_noise(dense)
+    for q in (block, dense):
+        for _ in range(20):
+            a = _spd(rng, np.array([1e2, 1e2, 1e6, 1e6, 1e12]))
+            a[0, 1] = -0.0
+            want, got = np.zeros((5, 5)), np.zeros((5, 5))
+            matmul55(a, q, want)
+            matmul_noise(a, q, got)
+            assert want.tobytes() == got.tobytes()
+
+
+def test_lane_inverse_is_bitwise_the_scalar_one(rng):
+    """invert_spd_ldl_lane (straight-line code for SIMD lanes) gives, lane by lane, bitwise
+    the inverse of invert_spd_ldl, and flags (instead of returning early) a lane that is not
+    positive definite or NaN; its code is what pkf.physics.lanes_codegen writes."""
+    from pkf.physics import lanes_codegen
+    from pkf.physics.linalg import LANES, invert_spd_ldl, invert_spd_ldl_lane
+
+    assert lanes_codegen.current_block() == lanes_codegen.generated_block()
+    scales = np.array([0.05, 0.05, 1e-4, 1e-4, 1e-7])
+    a = np.stack([_spd(rng, scales) for _ in range(LANES)], axis=-1)
+    a[4, 4, 2] = -a[4, 4, 2]
+    a[1, 1, 5] = np.nan
+    out, bad = np.zeros((5, 5, LANES)), np.zeros(LANES)
+    for lane in range(LANES):
+        invert_spd_ldl_lane(a, out, bad, lane)
+    for lane in range(LANES):
+        want = np.zeros((5, 5))
+        ok = invert_spd_ldl(np.ascontiguousarray(a[:, :, lane]), want, np.zeros((5, 5)), np.zeros(5))
+        assert ok == (bad[lane] == 0.0)
+        if ok:
+            assert want.tobytes() == np.ascontiguousarray(out[:, :, lane]).tobytes()
+    assert list(np.flatnonzero(bad)) == [2, 5]

@@ -24,7 +24,9 @@ Per iteration:
    a′ = a_k + F·x_p,k−1 − x_p,k = F·(x_p,k−1 − x_f,k−1) (x_p,k = a_k + F·x_f,k−1).
 3. Optimal state at every node = weighted mean of the forward prediction and the
    backward filtered state (paper §3): C = (P⁻¹ + Y)⁻¹, x = x_p + C·y (y on δ), with
-   L·D·Lᵀ inverses (`invert_spd_ldl`); the backward step's
+   L·D·Lᵀ inverses; the backward filter keeps each node's (Y, y), and the weighted means
+   are formed afterwards, LANES = 8 nodes at a time in SIMD lanes (`_combine_nodes`,
+   `invert_spd_ldl_lane`: lane by lane bitwise `invert_spd_ldl`). The backward step's
    M·Y and M·(y − Y·a) come from one solve with I + Y·Q (`_solve_general`).
    `SMOOTHER_RTS` computes the same states with the Rauch–Tung–Striebel smoother
    instead; a test checks they agree.
@@ -46,12 +48,27 @@ the same false-removal probability as `--outlier-chi2` for 1-D nodes (9 → 11.8
 outlier node gets no update (its filtered state is the prediction) but still receives
 an optimal state.
 
-Speed (parametrized, one pass, no outlier removal, 3,390 π-gun long tracks / 86,806
-nodes, the compiled track loop alone, CPU time, min of 15 repeats, best of 3 alternating
-rounds on the shared 2-core machine, `benchmarks/fit_core.py`):
-full fit 885 ns/node (1,216 before the δ-form backward filter, the L·D·Lᵀ inverses,
-the single-division update and the structured transports), forward filter 354 (433),
-backward filter + combination 531 (783).
+Speed (parametrized, one pass, no outlier removal, the compiled track loop alone, CPU
+time, min of 7 repeats, 3 rounds alternating with the checkout before issue 18's changes,
+on the shared 2-core machine under load, `benchmarks/fit_core.py`). Minimum-bias long
+tracks (``--sample minbias``: 8,907 tracks / 257,055 nodes): full fit 660–758 ns/node
+(before: 925–1,149; ×0.66–0.74 in each round), forward filter 408–440 (544–640), backward
+filter + combination 252–339 (343–509). π-gun long tracks (3,390 / 86,806 nodes): full
+523–559 (675–907; ×0.58–0.81), forward 282–397 (314–402), backward + combination
+126–277 (353–505). Every output is bitwise what it was. What did it: the combination as
+one SIMD loop over 8 nodes (119 → 50 ns/node alone; the ~20 ns of it that remain are the
+gathers into lanes), the state and covariance being filtered and the backward filter's
+Y on the stack (`pkf.jit.stack_array`: kept in registers, no aliasing with the node
+arrays; the forward filter ×0.93, the backward ×0.9), Y·Q and Fᵀ·A·F without their
+exact zeros (`matmul_noise`, `transport_info`). Where the rest goes (minimum bias, per
+node): the extrapolation ~130 ns (`pkf.params.transport`), the forward update ~110, the
+backward step ~200, the combination ~50; and the 12 % of long tracks below the UT→SciFi
+table's p_min of 3 GeV take its RK4 fallback through the field map, ~2,000 ns/node on
+those tracks, ~165 ns/node averaged over all (a table down to 1.5 GeV, LHCb's p_min,
+would remove it). Both filters are chains of dependent steps, each waiting for the last
+(the update's division, the elimination's five pivots): one track at a time is
+latency-bound, and the backward step in SIMD lanes over the columns of its products
+gained only 5 % (not kept). The next step is several tracks in SIMD lanes at once.
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
@@ -76,12 +93,14 @@ import numpy as np
 from pkf.fit.driver import register_fitter
 from pkf.fit.extrapolator import extrapolate
 from pkf.physics.linalg import (
+    LANES,
     add_matvec5,
     copy5,
     copy55,
-    invert_spd_ldl,
+    invert_spd_ldl_lane,
     invert_spd_triangular,
     matmul55,
+    matmul_noise,
     transport_info,
     matvec5,
     matvec5_t,
@@ -92,7 +111,7 @@ from pkf.physics.linalg import (
     zero55,
 )
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.jit import NO_REFCOUNT
+from pkf.jit import NO_REFCOUNT, stack_array
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -118,9 +137,14 @@ def node_stages(n_nodes: int, smoothed: bool = False) -> NodeStages:
     """A `NodeStages` record for `n_nodes` nodes (NaN until a fit writes them; 0: not kept),
     with smoothed rows if `smoothed`."""
     n_smoothed = n_nodes if smoothed else 0
-    return NodeStages(np.full((n_nodes, 5), np.nan), np.full((n_nodes, 5, 5), np.nan),
-                      np.full((n_nodes, 5), np.nan), np.full((n_nodes, 5, 5), np.nan),
-                      np.full((n_smoothed, 5), np.nan), np.full((n_smoothed, 5, 5), np.nan))
+    return NodeStages(
+        np.full((n_nodes, 5), np.nan),
+        np.full((n_nodes, 5, 5), np.nan),
+        np.full((n_nodes, 5), np.nan),
+        np.full((n_nodes, 5, 5), np.nan),
+        np.full((n_smoothed, 5), np.nan),
+        np.full((n_smoothed, 5, 5), np.nan),
+    )
 
 
 @nb.njit(cache=True, inline="always")
@@ -230,50 +254,86 @@ def transport_information(f, a, vec, out, tmp, tmp_vec):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_reference, ref,
-              pred, pred_cov, filt, filt_cov, jac, noise, smoother, out_state, out_cov,
-              work, mats, vec5, perm):
+def _fit_once(
+    ext,
+    z,
+    n_meas,
+    hx,
+    hy,
+    m,
+    sigma,
+    active,
+    seed,
+    seed_cov,
+    use_reference,
+    ref,
+    pred,
+    pred_cov,
+    filt,
+    filt_cov,
+    jac,
+    noise,
+    smoother,
+    out_state,
+    out_cov,
+    mats,
+    vec5,
+    perm,
+    info_at,
+    info_vec_at,
+):
     """One forward + backward + combination pass over the n nodes of one track.
 
-    Arrays pred…noise/ref are per-node scratch (first n rows used); out_state/out_cov
-    receive the optimal states. Returns (status code, track χ²).
+    Arrays pred…noise/ref and info_at/info_vec_at are per-node scratch (first n rows
+    used); out_state/out_cov receive the optimal states. Returns (status code, track χ²).
     """
     n = z.size
-    lin = vec5[:5]
+    lin = stack_array((5,))  # scratch on the stack (see `_backward_information_filter`)
     chi2 = 0.0
-    tmp = mats[0]
+    tmp = stack_array((5, 5))
+    step_work = stack_array((6, 5, 5))
     # ---- forward filter
     # The seed prior: at the pattern estimate, or, once a previous fit exists, at its
     # optimal first state, so that the prior biases nothing at convergence.
-    copy5(ref[0] if use_reference else seed, pred[0])
-    copy55(seed_cov, pred_cov[0])
+    # The state and covariance being filtered stay on the stack from node to node
+    # (`state`, `cov`); each node's prediction and filtered state are copied out.
+    state = stack_array((5,))
+    cov = stack_array((5, 5))
+    copy5(ref[0] if use_reference else seed, state)
+    copy55(seed_cov, cov)
     for k in range(n):
         if k > 0:
             if use_reference:
                 copy5(ref[k - 1], lin)
             else:
-                copy5(filt[k - 1], lin)
-            status = extrapolate(ext, lin, z[k - 1], z[k], pred[k], jac[k], noise[k], work)
+                copy5(state, lin)
+            status = extrapolate(ext, lin, z[k - 1], z[k], pred[k], jac[k], noise[k], step_work)
             if status != STATUS_OK:
                 return status, chi2
             if use_reference:
                 for i in range(5):
                     s = 0.0
                     for j in range(5):
-                        s += jac[k, i, j] * (filt[k - 1, j] - lin[j])
+                        s += jac[k, i, j] * (state[j] - lin[j])
                     pred[k, i] += s
-            transport_cov(jac[k], filt_cov[k - 1], tmp, pred_cov[k])
+            transport_cov(jac[k], cov, tmp, cov)
             for i in range(5):
                 for j in range(5):
-                    pred_cov[k, i, j] += noise[k, i, j]
-        copy5(pred[k], filt[k])
-        copy55(pred_cov[k], filt_cov[k])
+                    cov[i, j] += noise[k, i, j]
+            copy5(pred[k], state)
+        else:
+            copy5(state, pred[0])
+        copy55(cov, pred_cov[k])
         if active[k]:
             for j in range(n_meas[k]):
-                increment, s = scalar_update(filt[k], filt_cov[k], hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
+                increment, s = scalar_update(state, cov, hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
                 if not s > 0.0:
+                    copy5(state, filt[k])
+                    copy55(cov, filt_cov[k])
                     return STATUS_NOT_POSITIVE_DEFINITE, chi2
                 chi2 += increment
+        copy5(state, filt[k])
+        copy55(cov, filt_cov[k])
     if smoother == SMOOTHER_NONE:
         for k in range(n):
             copy5(filt[k], out_state[k])
@@ -282,33 +342,75 @@ def _fit_once(ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, use_refe
     if smoother == SMOOTHER_RTS:
         status = _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, mats, vec5, perm)
     else:
-        status = _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac,
-                                               noise, out_state, out_cov, mats, vec5)
+        status = _backward_information_filter(
+            n,
+            n_meas,
+            hx,
+            hy,
+            m,
+            sigma,
+            active,
+            pred,
+            pred_cov,
+            filt,
+            jac,
+            noise,
+            out_state,
+            out_cov,
+            mats,
+            vec5,
+            info_at,
+            info_vec_at,
+        )
     return status, chi2
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred_cov, filt, jac, noise,
-                                 out_state, out_cov, mats, vec5):
+def _backward_information_filter(
+    n,
+    n_meas,
+    hx,
+    hy,
+    m,
+    sigma,
+    active,
+    pred,
+    pred_cov,
+    filt,
+    jac,
+    noise,
+    out_state,
+    out_cov,
+    mats,
+    vec5,
+    info_at,
+    info_vec_at,
+):
     """Backward information filter and weighted-mean combination (see module docstring),
-    with y relative to the forward prediction at each node (δ = x − x_p)."""
-    info = mats[2]  # Y
-    info_vec = vec5[5:10]  # y of δ_k = x_k − x_p,k
-    spd_vec = vec5[10:20]
-    shift = vec5[20:25]
-    vec5 = vec5[:5]
+    with y relative to the forward prediction at each node (δ = x − x_p).
+
+    Two passes: the filter, downstream → upstream, keeps each node's (Y, y) in
+    info_at/info_vec_at; then `_combine_nodes` forms the weighted means, LANES nodes at a
+    time. Bitwise the states of one pass that combines at each node before moving on (the
+    same operations on the same numbers), and the same outputs on failure: the nodes
+    downstream of the first failure (in the filter's order) are written, no others."""
+    # scratch on the stack: no array of the caller's aliases it, so LLVM keeps it in registers
+    info = stack_array((5, 5))  # Y
+    info_vec = stack_array((5,))  # y of δ_k = x_k − x_p,k
+    shift = stack_array((5,))
+    vec5 = stack_array((5,))
+    a = stack_array((5, 5))
+    tmp = stack_array((5, 5))
+    tmp2 = stack_array((5, 5))
     zero5(info_vec)
-    a = mats[3]
-    inv = mats[4]
-    tmp = mats[0]
-    tmp2 = mats[1]
-    lu = mats[5]
     zero55(info)
+    status = STATUS_OK
+    lowest = 0  # the lowest node whose (Y, y) is known
     for k in range(n - 1, -1, -1):
         if active[k]:  # the residuals m − h·x_p enter
             add_node_information(info, info_vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], pred[k])
-        if not _combine(pred[k], pred_cov[k], info, info_vec, out_state[k], out_cov[k], inv, a, lu, vec5, spd_vec):
-            return STATUS_NOT_POSITIVE_DEFINITE
+        copy55(info, info_at[k])
+        copy5(info_vec, info_vec_at[k])
         if k == 0:
             break
         # propagate to node k−1: δ_k = F·δ_k−1 + a + w with a = F·(x_p,k−1 − x_f,k−1) (as
@@ -316,7 +418,7 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
         for i in range(5):
             vec5[i] = pred[k - 1, i] - filt[k - 1, i]
         matvec5(jac[k], vec5, shift)
-        matmul55(info, noise[k], a)
+        matmul_noise(info, noise[k], a)
         for i in range(5):
             a[i, i] += 1.0
         for i in range(5):
@@ -326,30 +428,70 @@ def _backward_information_filter(n, n_meas, hx, hy, m, sigma, active, pred, pred
             info_vec[i] = s
         copy55(info, tmp)
         if not _solve_general(a, tmp, info_vec):  # M·Y, M·(y − Y·a)
-            return STATUS_NOT_POSITIVE_DEFINITE
+            status = STATUS_NOT_POSITIVE_DEFINITE
+            lowest = k
+            break
         # Y ← Fᵀ·(M·Y)·F, y ← Fᵀ·M·(y − Y·a)
         transport_information(jac[k], tmp, info_vec, info, tmp2, vec5)
-    return STATUS_OK
+    if not _combine_nodes(lowest, n, pred, pred_cov, info_at, info_vec_at, out_state, out_cov):
+        return STATUS_NOT_POSITIVE_DEFINITE
+    return status
 
 
-@nb.njit(cache=True, inline="always")
-def _combine(x_p, p, info, info_vec, out_state, out_cov, p_inv, a, work, res, dinv):
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _combine_nodes(lo, hi, x_p, p, info, info_vec, out_state, out_cov):
     """The weighted mean of the forward prediction (x_p, P) and the backward filtered
-    information (Y, y) on δ = x − x_p at one node, in information form (paper §3):
-    C = (P⁻¹ + Y)⁻¹ and x = x_p + C·y. Two LDLᵀ inverses (`invert_spd_ldl`); a, work
-    (5×5), res (5, unused) and dinv (≥ 5) are scratch. False if P or P⁻¹ + Y is not
-    positive definite."""
-    if not invert_spd_ldl(p, p_inv, work, dinv):
-        return False
-    for i in range(5):
-        for j in range(5):
-            a[i, j] = p_inv[i, j] + info[i, j]
-    if not invert_spd_ldl(a, out_cov, work, dinv):
-        return False
-    add_matvec5(x_p, out_cov, info_vec, out_state)
-    for i in range(5):
-        if not out_cov[i, i] > 0.0:
-            return False
+    information (Y, y) on δ = x − x_p at nodes hi−1 … lo (paper §3, in information form):
+    C = (P⁻¹ + Y)⁻¹ and x = x_p + C·y, LANES nodes at a time (lane l: node base + l) with
+    the vectorised L·D·Lᵀ inverses (`invert_spd_ldl_lane`), each lane bitwise what
+    `invert_spd_ldl` gives. Writes out_state/out_cov downstream → upstream, and stops at the
+    first node where P or P⁻¹ + Y is not positive definite (nothing written there) or C has
+    a diagonal element ≤ 0 (written there): returns False then."""
+    p_lanes = stack_array((5, 5, LANES))
+    y_lanes = stack_array((5, 5, LANES))
+    c_lanes = stack_array((5, 5, LANES))
+    x_lanes = stack_array((5, LANES))
+    v_lanes = stack_array((5, LANES))
+    bad_pivot = stack_array((LANES,))
+    bad_diag = stack_array((LANES,))
+    top = hi
+    while top > lo:
+        base = max(lo, top - LANES)
+        count = top - base
+        for l in range(count):
+            k = base + l
+            for i in range(5):
+                x_lanes[i, l] = x_p[k, i]
+                v_lanes[i, l] = info_vec[k, i]
+                for j in range(5):
+                    p_lanes[i, j, l] = p[k, i, j]
+                    y_lanes[i, j, l] = info[k, i, j]
+        for l in range(min(count, LANES)):  # one SIMD loop over the lanes (count ≤ LANES: no overlap)
+            bad_pivot[l] = 0.0
+            invert_spd_ldl_lane(p_lanes, c_lanes, bad_pivot, l)  # P⁻¹
+            for i in range(5):
+                for j in range(5):
+                    p_lanes[i, j, l] = c_lanes[i, j, l] + y_lanes[i, j, l]
+            invert_spd_ldl_lane(p_lanes, c_lanes, bad_pivot, l)  # C = (P⁻¹ + Y)⁻¹
+            bad = 0.0
+            for i in range(5):  # x = x_p + C·y (`add_matvec5`); diag(C) > 0
+                s = x_lanes[i, l]
+                for k in range(5):
+                    s += c_lanes[i, k, l] * v_lanes[k, l]
+                x_lanes[i, l] = s
+                bad = bad if c_lanes[i, i, l] > 0.0 else 1.0
+            bad_diag[l] = bad
+        for l in range(count - 1, -1, -1):
+            k = base + l
+            if bad_pivot[l] != 0.0:
+                return False
+            for i in range(5):
+                out_state[k, i] = x_lanes[i, l]
+                for j in range(5):
+                    out_cov[k, i, j] = c_lanes[i, j, l]
+            if bad_diag[l] != 0.0:
+                return False
+        top = base
     return True
 
 
@@ -397,8 +539,9 @@ class KalmanFitter(NamedTuple):
     """The Kalman core as a fitter of `pkf.fit.driver.fit_tracks`: the extrapolator
     context, the number of passes (the 2nd and later linearise around the previous
     optimal states), the combination (SMOOTHER_*), per-node scratch for the batch's
-    longest track (`kalman_fitter` allocates it), and `stages`, where each track's
-    predicted and filtered states go after its last fit (zero rows: nowhere)."""
+    longest track (`kalman_fitter` allocates it; info/info_vec: the backward filter's
+    (Y, y) at each node), and `stages`, where each track's predicted and filtered states
+    go after its last fit (zero rows: nowhere)."""
 
     ext: tuple
     n_iterations: int
@@ -412,23 +555,39 @@ class KalmanFitter(NamedTuple):
     filt_cov: np.ndarray
     jac: np.ndarray
     noise: np.ndarray
-    work: np.ndarray
     mats: np.ndarray
     vec5: np.ndarray
     perm: np.ndarray
     stages: NodeStages
+    info: np.ndarray
+    info_vec: np.ndarray
 
 
-def kalman_fitter(ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN,
-                  stages: NodeStages | None = None) -> KalmanFitter:
+def kalman_fitter(
+    ext, n_nodes: int, n_iterations: int = 1, smoother: int = SMOOTHER_WEIGHTED_MEAN, stages: NodeStages | None = None
+) -> KalmanFitter:
     """The Kalman fitter of extrapolator context `ext` with scratch for tracks of up to
     `n_nodes` nodes; it keeps the predicted and filtered states in `stages` if given."""
-    return KalmanFitter(ext, int(n_iterations), int(smoother), False, np.zeros(1, dtype=np.bool_),
-                        np.empty((n_nodes, 5)), np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)),
-                        np.empty((n_nodes, 5)), np.empty((n_nodes, 5, 5)), np.empty((n_nodes, 5, 5)),
-                        np.empty((n_nodes, 5, 5)), np.empty((6, 5, 5)),
-                        np.empty((6, 5, 5)), np.empty(25), np.empty(5, dtype=np.int64),
-                        node_stages(0) if stages is None else stages)
+    return KalmanFitter(
+        ext,
+        int(n_iterations),
+        int(smoother),
+        False,
+        np.zeros(1, dtype=np.bool_),
+        np.empty((n_nodes, 5)),
+        np.empty((n_nodes, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5, 5)),
+        np.empty((6, 5, 5)),
+        np.empty(25),
+        np.empty(5, dtype=np.int64),
+        node_stages(0) if stages is None else stages,
+        np.empty((n_nodes, 5, 5)),
+        np.empty((n_nodes, 5)),
+    )
 
 
 @nb.njit(cache=True, inline="always")
@@ -445,9 +604,34 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
     status = STATUS_OK
     chi2 = 0.0
     for it in range(max(1, f.n_iterations)):
-        status, chi2 = _fit_once(f.ext, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.have_reference[0],
-                                 f.ref, f.pred, f.pred_cov, f.filt, f.filt_cov, f.jac, f.noise,
-                                 f.smoother, out_state, out_cov, f.work, f.mats, f.vec5, f.perm)
+        status, chi2 = _fit_once(
+            f.ext,
+            z,
+            n_meas,
+            hx,
+            hy,
+            m,
+            sigma,
+            active,
+            seed,
+            seed_cov,
+            f.have_reference[0],
+            f.ref,
+            f.pred,
+            f.pred_cov,
+            f.filt,
+            f.filt_cov,
+            f.jac,
+            f.noise,
+            f.smoother,
+            out_state,
+            out_cov,
+            f.mats,
+            f.vec5,
+            f.perm,
+            f.info,
+            f.info_vec,
+        )
         if status != STATUS_OK:
             break
         for k in range(z.size):
