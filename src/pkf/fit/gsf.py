@@ -22,7 +22,9 @@ After every plane the mixture is reduced: components with weight < `weight_cut`
 (1e−4) are dropped, then the closest pair in the symmetric Kullback–Leibler distance of
 the q/p marginals (as ACTS: d = (v_i − v_j)(1/v_j − 1/v_i) + (μ_i − μ_j)²(1/v_i + 1/v_j))
 is merged by moment matching until at most `max_components` (12) remain (nearest-
-neighbour bookkeeping keeps one reduction O(n²) in the n = 12·K components).
+neighbour bookkeeping with vectorised rows of distances on a compact mixture, `_reduce`:
+O(n²) for the first neighbours, O(n) per merge, in the n ≈ 64 of 12·K components the
+weight cut leaves on lhcb-like electrons).
 
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
@@ -35,8 +37,9 @@ the forward filter's final (collapsed) state. The smoothed state at node k < las
 the product of the forward *predicted* mixture (everything upstream of k) and the
 backward *filtered* mixture (node k and everything downstream): every pair (i, j) gives
 a component with weight ∝ a_i·b_j·N(μ_i; ν_j, P_i + B_j) and the Gaussian product's
-mean and covariance; pairs below the weight cut are dropped and the product is reduced
-like any mixture — the GSF analogue of the Kalman core's weighted mean (for one
+mean and covariance; pairs below the weight cut are dropped (the pair weights come first,
+from one Cholesky substitution each; the products only for the pairs kept, `_combine`)
+and the product is reduced like any mixture — the GSF analogue of the Kalman core's weighted mean (for one
 component exactly that). At the last node the smoothed mixture *is* the forward
 filtered one, which is used as it is.
 
@@ -145,6 +148,34 @@ Jacobian per component, 0.24 ms for the reference Kalman fit. Sharing changes th
 states by 0.005σ (x, y, tx, ty) and 0.13σ (q/p) RMS at the first hit, up to 0.26σ in q/p
 at the last hit (the KL reduction follows small differences), with the same resolutions.
 
+Where the time goes (issue 18.2; CPU time per stage from a clock around it, 30 events of
+the gsf_components electron sample, 29.5 nodes and ~64 convolutions per track, forward and
+backward): at 6.2 ms per track (efa2332) transport 16 %, material and Bethe–Heitler
+convolution 8 %, the 64 reductions after a convolution (64 → 12 components after the
+weight cut) 30 %, the 30 forward × backward products (144 pairs → 133 candidates → 61
+kept by the weight cut → 12) 26 % for the pairs and 18 % for their reduction and output,
+updates 1 %. Two changes, with outputs equal up to rounding (≤ 2e−8σ on the benchmark
+samples; electron_fits.py's pull and δp/p figures equal to 8 digits; 60 minimum-bias
+events ν = 7.6 seed 31: the same 16,540 of 16,546 tracks ok, χ² equal to 1.4e−9 on 99.9 %
+of them, and one ghost track, 10/258, whose refit after its first UT outlier had a negative
+residual variance at the next UT hit before — χ² NaN, unseen by the outlier search — and
+now removes it as a second outlier, χ² 48): the reduction's neighbour searches are rows
+of distances without branches over contiguous q/p moments, which the compiler vectorises, on a mixture
+kept compact while it shrinks (rows of 38 instead of 64 on average; ×1.5 per reduction);
+the pair weights take one equilibrated Cholesky factor and one forward substitution, the
+products (P − XᵀX, X = L⁻¹·D·P) only the kept pairs (×1.8). Now 4.4–4.5 ms per track
+on the `benchmarks/gsf_components.py` sample (946 tracks; separate processes alternating with
+efa2332, CPU time, best of 2 × 2: 6.03 → 4.46 ms, ×0.74), telescope electrons
+(`benchmarks/vs_acts.py` sample, 2,000 tracks) 0.99 → 0.63 ms (×0.63).
+Split now (the same clock, ±3 %): transport 22 %, material 12 %, reductions after a
+convolution 28 %, pairs 20 %, their reduction 12 % and output 4 %. The RK4 of the components other than the
+leading one is 18 % of the total (ablated, not moved at all: 4.43 → 3.62 ms), most of it
+in the magnet (the 5 m between UT and SciFi are 52 steps of 100 mm for each component);
+moving the components by the leading one's Jacobian where the field bends them apart by
+less than 1e−5 rad (the VELO) together with one Bethe–Heitler evaluation per plane
+changed the time by −3…+1 % (within the machine's noise) and is not done. numba's
+reference counting is already pruned from these kernels (no NRT_incref in `_reduce`'s IR).
+
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
 the whole run, issue 13), and a track whose output state, covariance or χ² is not
@@ -178,7 +209,7 @@ from pkf.params.bethe_heitler import (
     bethe_heitler_components,
     load_bethe_heitler_mixture,
 )
-from pkf.physics.transport import rk4_propagate_jacobian, rk4_propagate_scalar
+from pkf.physics.transport import rk4_propagate_scalar, rk4_transport_jacobian
 from pkf.physics.constants import MASS_ELECTRON
 
 OUTPUT_CORE = 3
@@ -425,11 +456,10 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
         _load_qop_moments(mu, cov, i, q, v, iv)
         last = count - 1
         count -= 1
-        for k in range(count + 1):  # -2: the neighbour was merged, search again
-            nn[k] = -2 if (nn[k] == i or nn[k] == j) else nn[k]
+        for k in range(count + 1):  # -2: the neighbour was merged, search again; last → j (moved below)
+            t = nn[k]
+            nn[k] = -2 if (t == i or t == j) else (j if t == last else t)
         if j != last:  # the last component fills the slot of j
-            for k in range(count + 1):
-                nn[k] = j if nn[k] == last else nn[k]
             _move_component(w, mu, cov, moments, nn, last, j)
             if i == last:
                 i = j
@@ -639,12 +669,13 @@ def widen_to_mixture(cov, mixture_cov):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
+def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians and the leading one stays in the
     envelope; else each its own). A component that fails (leaves the z-parametrised
     envelope, or a variance overflows) gets weight 0. Returns the number of surviving
-    components."""
+    components. `work` (5, 5, 5) scratch: the RK stages and the leading state (nothing
+    is allocated)."""
     if z_to == z_from:
         return n
     ref = ctx.ref
@@ -652,8 +683,10 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
     alive = 0
     shared = ctx.share_jacobians
     if shared:
-        new = rk4_propagate_jacobian(mu[lead], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
-                                     ref.field_grid, seg)
+        new = work[4, 0]
+        copy5(mu[lead], new)
+        rk4_transport_jacobian(new, z_from, z_to, ref.max_step, ref.field_kind, ref.field_params, ref.field_grid,
+                               seg, work[:4])
         # a lead that leaves the envelope has no Jacobian to share: each component its own
         shared = in_envelope(new) and _finite55(seg)
     if shared:
@@ -673,10 +706,8 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
             copy55(tmp2, cov[c])
     else:
         for c in range(n):
-            new = rk4_propagate_jacobian(mu[c], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
-                                         ref.field_grid, seg)
-            for i in range(4):
-                mu[c, i] = new[i]
+            rk4_transport_jacobian(mu[c], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
+                                   ref.field_grid, seg, work[:4])
             sandwich(seg, cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     for c in range(n):
@@ -783,7 +814,8 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     """RK4 of every component; the components that left the envelope are dropped."""
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
     n = actor.count[0]
-    _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2])
+    _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2],
+               actor.scratch[6:11])
     n = _normalise_and_cut(w, mu, cov, n, 0.0)
     actor.count[0] = n
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
@@ -1251,7 +1283,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((5, cap)),
         np.zeros(cap, dtype=np.bool_),
-        np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
+        np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
         else np.ascontiguousarray(qop_prior_kind, dtype=np.int8),
