@@ -22,7 +22,9 @@ After every plane the mixture is reduced: components with weight < `weight_cut`
 (1e−4) are dropped, then the closest pair in the symmetric Kullback–Leibler distance of
 the q/p marginals (as ACTS: d = (v_i − v_j)(1/v_j − 1/v_i) + (μ_i − μ_j)²(1/v_i + 1/v_j))
 is merged by moment matching until at most `max_components` (12) remain (nearest-
-neighbour bookkeeping keeps one reduction O(n²) in the n = 12·K components).
+neighbour bookkeeping with vectorised rows of distances on a compact mixture, `_reduce`:
+O(n²) for the first neighbours, O(n) per merge, in the n ≈ 64 of 12·K components the
+weight cut leaves on lhcb-like electrons).
 
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
@@ -35,8 +37,9 @@ the forward filter's final (collapsed) state. The smoothed state at node k < las
 the product of the forward *predicted* mixture (everything upstream of k) and the
 backward *filtered* mixture (node k and everything downstream): every pair (i, j) gives
 a component with weight ∝ a_i·b_j·N(μ_i; ν_j, P_i + B_j) and the Gaussian product's
-mean and covariance; pairs below the weight cut are dropped and the product is reduced
-like any mixture — the GSF analogue of the Kalman core's weighted mean (for one
+mean and covariance; pairs below the weight cut are dropped (the pair weights come first,
+from one Cholesky substitution each; the products only for the pairs kept, `_combine`)
+and the product is reduced like any mixture — the GSF analogue of the Kalman core's weighted mean (for one
 component exactly that). At the last node the smoothed mixture *is* the forward
 filtered one, which is used as it is.
 
@@ -145,6 +148,34 @@ Jacobian per component, 0.24 ms for the reference Kalman fit. Sharing changes th
 states by 0.005σ (x, y, tx, ty) and 0.13σ (q/p) RMS at the first hit, up to 0.26σ in q/p
 at the last hit (the KL reduction follows small differences), with the same resolutions.
 
+Where the time goes (issue 18.2; CPU time per stage from a clock around it, 30 events of
+the gsf_components electron sample, 29.5 nodes and ~64 convolutions per track, forward and
+backward): at 6.2 ms per track (efa2332) transport 16 %, material and Bethe–Heitler
+convolution 8 %, the 64 reductions after a convolution (64 → 12 components after the
+weight cut) 30 %, the 30 forward × backward products (144 pairs → 133 candidates → 61
+kept by the weight cut → 12) 26 % for the pairs and 18 % for their reduction and output,
+updates 1 %. Two changes, with outputs equal up to rounding (≤ 2e−8σ on the benchmark
+samples; electron_fits.py's pull and δp/p figures equal to 8 digits; 60 minimum-bias
+events ν = 7.6 seed 31: the same 16,540 of 16,546 tracks ok, χ² equal to 1.4e−9 on 99.9 %
+of them, and one ghost track, 10/258, whose refit after its first UT outlier had a negative
+residual variance at the next UT hit before — χ² NaN, unseen by the outlier search — and
+now removes it as a second outlier, χ² 48): the reduction's neighbour searches are rows
+of distances without branches over contiguous q/p moments, which the compiler vectorises, on a mixture
+kept compact while it shrinks (rows of 38 instead of 64 on average; ×1.5 per reduction);
+the pair weights take one equilibrated Cholesky factor and one forward substitution, the
+products (P − XᵀX, X = L⁻¹·D·P) only the kept pairs (×1.8). Now 4.4–4.5 ms per track
+on the `benchmarks/gsf_components.py` sample (946 tracks; separate processes alternating with
+efa2332, CPU time, best of 2 × 2: 6.03 → 4.46 ms, ×0.74), telescope electrons
+(`benchmarks/vs_acts.py` sample, 2,000 tracks) 0.99 → 0.63 ms (×0.63).
+Split now (the same clock, ±3 %): transport 22 %, material 12 %, reductions after a
+convolution 28 %, pairs 20 %, their reduction 12 % and output 4 %. The RK4 of the components other than the
+leading one is 18 % of the total (ablated, not moved at all: 4.43 → 3.62 ms), most of it
+in the magnet (the 5 m between UT and SciFi are 52 steps of 100 mm for each component);
+moving the components by the leading one's Jacobian where the field bends them apart by
+less than 1e−5 rad (the VELO) together with one Bethe–Heitler evaluation per plane
+changed the time by −3…+1 % (within the machine's noise) and is not done. numba's
+reference counting is already pruned from these kernels (no NRT_incref in `_reduce`'s IR).
+
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
 the whole run, issue 13), and a track whose output state, covariance or χ² is not
@@ -167,7 +198,7 @@ import numpy as np
 from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import NodeStages, node_stages, scalar_update
-from pkf.physics.linalg import add_matvec5, copy5, copy55, invert_spd, sandwich, set_identity, symmetrise
+from pkf.physics.linalg import copy5, copy55, equilibrated_cholesky, sandwich, set_identity
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG, TRACK_VELO
@@ -178,7 +209,7 @@ from pkf.params.bethe_heitler import (
     bethe_heitler_components,
     load_bethe_heitler_mixture,
 )
-from pkf.physics.transport import rk4_propagate_jacobian, rk4_propagate_scalar
+from pkf.physics.transport import rk4_propagate_scalar, rk4_transport_jacobian
 from pkf.physics.constants import MASS_ELECTRON
 
 OUTPUT_CORE = 3
@@ -344,76 +375,107 @@ def _closer(d, best_d, best, candidate):
     return best_d, best
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _kl_row(i, n, q, v, iv, alive, dist):
+    """dist[k] ← the KL distance of components i and k (`_kl_from_moments`, bitwise) for
+    every live k ≠ i among the first n, +inf for i and the dead: one loop without
+    branches over contiguous arrays, which the compiler vectorises."""
+    qi = q[i]
+    vi = v[i]
+    ivi = iv[i]
+    for k in range(n):
+        d = qi - q[k]
+        x = (vi - v[k]) * (iv[k] - ivi) + d * d * (ivi + iv[k])
+        dist[k] = x if alive[k] else np.inf
+    dist[i] = np.inf
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _first_min(n, dist):
+    """(smallest value, its first index) of dist[:n] ((inf, −1) if none is below +inf;
+    NaN never wins): `_closer` offered the values in index order."""
+    best_d = np.inf
+    best = -1
+    for k in range(n):
+        if dist[k] < best_d:
+            best_d = dist[k]
+            best = k
+    return best_d, best
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _move_component(w, mu, cov, moments, nearest, src, dst):
+    """Component src, its q/p moments and its nearest-neighbour record into slot dst."""
+    _copy_component(w, mu, cov, src, w, mu, cov, dst)
+    for r in range(4):
+        moments[r, dst] = moments[r, src]
+    nearest[dst] = nearest[src]
+
+
 @nb.njit(cache=True, error_model="numpy")
 def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
-    compacts and returns the new count. `moments` (4, ≥ n) is scratch: the nearest
-    distance of each component and its q/p mean, variance and inverse variance, kept
-    contiguous so that a distance costs no division and no strided load (bitwise the same
-    merges as dividing in every distance on the (n, 5, 5) arrays, and faster). The merge loop
-    offers neighbours through `_closer` (scalars only) and keeps the merged component's and
-    each recomputed neighbour in locals, stored once."""
+    returns the new count (the components stay compact in the first slots). `moments`
+    (5, ≥ n) is scratch: the nearest distance of each component, its q/p mean, variance
+    and inverse variance, and one row of distances, kept contiguous so that a distance
+    costs no division and no strided load; `nearest` (≥ n) int: each component's
+    nearest neighbour; `alive` (≥ n) bool scratch.
+
+    Nearest-neighbour bookkeeping: every component knows its nearest neighbour; the pair
+    merged is the component with the smallest such distance and its neighbour (the
+    first index among equal distances); after a merge, the merged component's distances
+    to all others are one row (`_kl_row`), which also offers it as the new neighbour of
+    each component it is now closer to, and the components whose neighbour was one of
+    the merged pair search again (one row each). Every row is a loop without branches,
+    which the compiler vectorises, and the mixture stays compact while it shrinks: the
+    last component fills the slot of the one merged away, so that every row runs over
+    the remaining components only (64 → 12 on lhcb-like electrons: rows of 38 on
+    average instead of 64). The pairs merged are those of merging in place (02cf0ed's
+    bookkeeping) except among exactly equal distances; the order of the surviving
+    components, and with it the rounding of later sums over them, differs."""
     if n <= max_n:
         return n
-    nearest_d, q, v, iv = moments[0], moments[1], moments[2], moments[3]
+    nn = nearest
+    nearest_d, q, v, iv, dist = moments[0], moments[1], moments[2], moments[3], moments[4]
     for i in range(n):
         alive[i] = True
-        nearest_d[i] = np.inf
-        nearest[i] = -1
         _load_qop_moments(mu, cov, i, q, v, iv)
     for i in range(n):
-        for j in range(i + 1, n):
-            d = _kl_from_moments(q, v, iv, i, j)
-            if d < nearest_d[i]:
-                nearest_d[i] = d
-                nearest[i] = j
-            if d < nearest_d[j]:
-                nearest_d[j] = d
-                nearest[j] = i
+        _kl_row(i, n, q, v, iv, alive, dist)
+        nearest_d[i], nn[i] = _first_min(n, dist)
     count = n
     while count > max_n:
-        i = -1
-        for k in range(n):
-            if alive[k] and (i < 0 or nearest_d[k] < nearest_d[i]):
+        i = 0
+        for k in range(1, count):
+            if nearest_d[k] < nearest_d[i]:
                 i = k
-        j = nearest[i]
+        j = nn[i]
         if j < 0:  # no comparable distance (a NaN variance): merge with any other, never stop short
-            for k in range(n):
-                if alive[k] and k != i:
-                    j = k
-                    break
+            j = 1 if i == 0 else 0
         _merge_into(w, mu, cov, i, j)
         _load_qop_moments(mu, cov, i, q, v, iv)
-        alive[j] = False
+        last = count - 1
         count -= 1
-        near_d = np.inf  # the merged component's new nearest neighbour
-        near = -1
-        for k in range(n):
-            if not alive[k] or k == i:
-                continue
-            d = _kl_from_moments(q, v, iv, i, k)
-            near_d, near = _closer(d, near_d, near, k)
-            if nearest[k] == i or nearest[k] == j:
-                # its partner changed: recompute its nearest neighbour
-                best_d = np.inf
-                best = -1
-                for l in range(n):
-                    if alive[l] and l != k:
-                        best_d, best = _closer(_kl_from_moments(q, v, iv, k, l), best_d, best, l)
-                nearest_d[k] = best_d
-                nearest[k] = best
-            elif d < nearest_d[k]:
-                nearest_d[k] = d
-                nearest[k] = i
+        for k in range(count + 1):  # -2: the neighbour was merged, search again; last → j (moved below)
+            t = nn[k]
+            nn[k] = -2 if (t == i or t == j) else (j if t == last else t)
+        if j != last:  # the last component fills the slot of j
+            _move_component(w, mu, cov, moments, nn, last, j)
+            if i == last:
+                i = j
+        for k in range(count):
+            if k != i and nn[k] == -2:
+                _kl_row(k, count, q, v, iv, alive, dist)
+                nearest_d[k], nn[k] = _first_min(count, dist)
+        _kl_row(i, count, q, v, iv, alive, dist)
+        near_d, near = _first_min(count, dist)
+        for k in range(count):
+            closer = dist[k] < nearest_d[k]
+            nearest_d[k] = dist[k] if closer else nearest_d[k]
+            nn[k] = i if closer else nn[k]
         nearest_d[i] = near_d
-        nearest[i] = near
-    out = 0
-    for c in range(n):
-        if alive[c]:
-            if out != c:
-                _copy_component(w, mu, cov, c, w, mu, cov, out)
-            out += 1
-    return out
+        nn[i] = near
+    return count
 
 
 @nb.njit(cache=True, inline="always")
@@ -607,12 +669,13 @@ def widen_to_mixture(cov, mixture_cov):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
+def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians and the leading one stays in the
     envelope; else each its own). A component that fails (leaves the z-parametrised
     envelope, or a variance overflows) gets weight 0. Returns the number of surviving
-    components."""
+    components. `work` (5, 5, 5) scratch: the RK stages and the leading state (nothing
+    is allocated)."""
     if z_to == z_from:
         return n
     ref = ctx.ref
@@ -620,8 +683,10 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
     alive = 0
     shared = ctx.share_jacobians
     if shared:
-        new = rk4_propagate_jacobian(mu[lead], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
-                                     ref.field_grid, seg)
+        new = work[4, 0]
+        copy5(mu[lead], new)
+        rk4_transport_jacobian(new, z_from, z_to, ref.max_step, ref.field_kind, ref.field_params, ref.field_grid,
+                               seg, work[:4])
         # a lead that leaves the envelope has no Jacobian to share: each component its own
         shared = in_envelope(new) and _finite55(seg)
     if shared:
@@ -641,10 +706,8 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2):
             copy55(tmp2, cov[c])
     else:
         for c in range(n):
-            new = rk4_propagate_jacobian(mu[c], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
-                                         ref.field_grid, seg)
-            for i in range(4):
-                mu[c, i] = new[i]
+            rk4_transport_jacobian(mu[c], z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
+                                   ref.field_grid, seg, work[:4])
             sandwich(seg, cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     for c in range(n):
@@ -751,7 +814,8 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     """RK4 of every component; the components that left the envelope are dropped."""
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
     n = actor.count[0]
-    _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2])
+    _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2],
+               actor.scratch[6:11])
     n = _normalise_and_cut(w, mu, cov, n, 0.0)
     actor.count[0] = n
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
@@ -827,68 +891,148 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     return chi2
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
+    """ssum ← P_i + B_j and its equilibrated Cholesky factor (`equilibrated_cholesky`:
+    D·ssum·D = L·Lᵀ, D = diag(scale)) into lu. False if P_i + B_j is not positive definite."""
+    for k in range(5):
+        for l in range(5):
+            ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
+    return equilibrated_cholesky(ssum, lu, scale)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
+    """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S), d = ν_j − μ_i, for
+    S = ssum factored by `_pair_factor`: one forward substitution y = L⁻¹·D·d (y is
+    kept: the product's mean needs it), dᵀS⁻¹d = yᵀy, and det S = Π L_kk²·S_kk (one
+    logarithm of the product; the sum of the logarithms where it under- or overflows)."""
+    q = 0.0
+    det = 1.0
+    for k in range(5):
+        t = (bmu[j, k] - fmu[i, k]) * scale[k]
+        for l in range(k):
+            t -= lu[k, l] * y[l]
+        t /= lu[k, k]
+        y[k] = t
+        q += t * t
+        det *= lu[k, k] * lu[k, k] * ssum[k, k]
+    if det > 0.0 and math.isfinite(det):
+        logdet = math.log(det)
+    else:
+        logdet = 0.0
+        for k in range(5):
+            logdet += 2.0 * math.log(lu[k, k]) + math.log(ssum[k, k])
+    return -0.5 * (q + logdet)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
+    """The Gaussian product of forward component i and the backward component whose sum
+    with it `_pair_factor` factored (lu, scale) and `_pair_log_overlap` solved (y):
+    with X = L⁻¹·D·P_i (x, 5×5; five forward substitutions), P_i·S⁻¹·P_i = XᵀX and
+    P_i·S⁻¹·d = Xᵀy, so mean μ_i + Xᵀy and covariance P_i − XᵀX (exactly symmetric) —
+    the Kalman form μ_i + K·d, P_i − K·P_i with K = P_i·S⁻¹ without S⁻¹. False if a
+    variance of the product is not positive."""
+    for c in range(5):
+        for k in range(5):
+            t = fcov[i, k, c] * scale[k]
+            for l in range(k):
+                t -= lu[k, l] * x[l, c]
+            x[k, c] = t / lu[k, k]
+    for k in range(5):
+        t = fmu[i, k]
+        for r in range(5):
+            t += x[r, k] * y[r]
+        out_mu[k] = t
+    ok = True
+    for k in range(5):
+        for l in range(k, 5):
+            t = fcov[i, k, l]
+            for r in range(5):
+                t -= x[r, k] * x[r, l]
+            out_cov[k, l] = t
+            out_cov[l, k] = t
+        if not out_cov[k, k] > 0.0:
+            ok = False
+    return ok
+
+
 @nb.njit(cache=True, error_model="numpy")
 def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, moments, alive,
              out_mean, out_cov, scratch, vec):
     """Product of the forward-predicted and backward-filtered mixtures at a node into
     (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
-    component count (0 on failure)."""
+    component count (0 on failure).
+
+    Pairs (i, j) of positive weights whose P_i + B_j is positive definite are candidates,
+    with log weight log a_i + log b_j + log N(μ_i; ν_j, P_i + B_j) (`_pair_log_overlap`).
+    The products' means and covariances (`_pair_product`) are computed only for the
+    candidates the weight cut keeps (w/Σw ≥ weight_cut, and the largest; on lhcb-like
+    electrons 61 of 133). A candidate whose product has a non-positive variance is no
+    candidate (as when every product was computed first: it counts neither in the
+    largest weight nor in the sum), and the cut is made again without it. Equal to
+    computing every product first (02cf0ed) up to rounding."""
     ssum = scratch[0]
-    sinv = scratch[1]
     lu = scratch[2]
-    gain = scratch[3]
-    diff = vec[:5]
-    spd = vec[5:15]
+    x = scratch[3]
+    y = vec[:5]
+    scale = vec[5:10]
+    pair = nearest
+    state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
     n = 0
-    largest = -np.inf
     for i in range(nf):
+        if not fw[i] > 0.0:
+            continue
+        log_fw = math.log(fw[i])
         for j in range(nb_):
-            for k in range(5):
-                for l in range(5):
-                    ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
-            if not invert_spd(ssum, sinv, lu, spd):
+            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, lu, scale)):
                 continue
-            # log det of P_i + B_j from the equilibrated Cholesky factor in lu
-            logdet = 0.0
-            for k in range(5):
-                logdet += 2.0 * math.log(lu[k, k]) + math.log(ssum[k, k])
-            for k in range(5):
-                diff[k] = bmu[j, k] - fmu[i, k]
-            q = 0.0
-            for k in range(5):
-                s = 0.0
-                for l in range(5):
-                    s += sinv[k, l] * diff[l]
-                q += diff[k] * s
-            # K = P_i (P_i + B_j)⁻¹; mean = μ_i + K·diff; cov = P_i − K·P_i
-            for k in range(5):
-                for l in range(5):
-                    s = 0.0
-                    for r in range(5):
-                        s += fcov[i, k, r] * sinv[r, l]
-                    gain[k, l] = s
-            add_matvec5(fmu[i], gain, diff, pmu[n])
-            for k in range(5):
-                for l in range(5):
-                    s = fcov[i, k, l]
-                    for r in range(5):
-                        s -= gain[k, r] * fcov[i, r, l]
-                    pcov[n, k, l] = s
-            symmetrise(pcov[n])
-            ok = True
-            for k in range(5):
-                if not pcov[n, k, k] > 0.0:
-                    ok = False
-            if not ok or not (fw[i] > 0.0 and bw[j] > 0.0):
+            pw[n] = log_fw + math.log(bw[j]) + _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y)
+            if math.isnan(pw[n]):
                 continue
-            pw[n] = math.log(fw[i]) + math.log(bw[j]) - 0.5 * (q + logdet)
-            largest = max(largest, pw[n])
+            pair[n] = i * nb_ + j
+            state[n] = 0.0
             n += 1
-    if n == 0:
-        return 0
+    while True:  # the cut, again after a candidate's product failed
+        largest = -np.inf
+        best = -1
+        for c in range(n):
+            if state[c] >= 0.0 and pw[c] > largest:
+                largest = pw[c]
+                best = c
+        if best < 0:
+            return 0
+        total = 0.0
+        for c in range(n):
+            if state[c] >= 0.0:
+                total += math.exp(pw[c] - largest)
+        failed = False
+        for c in range(n):
+            w = math.exp(pw[c] - largest)
+            if state[c] == 0.0 and (c == best or (w > 0.0 and w / total >= ctx.weight_cut)):
+                i = pair[c] // nb_
+                j = pair[c] % nb_
+                _pair_factor(fcov, i, bcov, j, ssum, lu, scale)
+                _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y)
+                if _pair_product(fmu, fcov, i, lu, scale, y, x, pmu[c], pcov[c]):
+                    state[c] = 1.0
+                else:
+                    state[c] = -1.0
+                    failed = True
+        if not failed:
+            break
+    m = 0
     for c in range(n):
-        pw[c] = math.exp(pw[c] - largest)
-    return _summarise(ctx, pw, pmu, pcov, n, nearest, moments, alive, out_mean, out_cov)
+        if state[c] == 1.0:
+            w = math.exp(pw[c] - largest)
+            if c == best or (w > 0.0 and w / total >= ctx.weight_cut):
+                pw[m] = w
+                if m != c:
+                    copy5(pmu[c], pmu[m])
+                    copy55(pcov[c], pcov[m])
+                m += 1
+    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, alive, out_mean, out_cov)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -1137,8 +1281,9 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
          np.zeros((cap, 5, 5))),
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
-        np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((4, cap)), np.zeros(cap, dtype=np.bool_),
-        np.zeros((6, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((5, cap)),
+        np.zeros(cap, dtype=np.bool_),
+        np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
         else np.ascontiguousarray(qop_prior_kind, dtype=np.int8),
