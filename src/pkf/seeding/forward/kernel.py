@@ -86,9 +86,8 @@ def _scan(n_fwd: int, n_sf: int, n_x: int, max_nodes_q: int, max_entries: int, m
 
 
 def _smoother(n_ut: int) -> Smoother:
-    return Smoother(x=np.zeros(5), C=np.zeros((5, 5)), A=np.zeros((5, 5)), inv=np.zeros((5, 5)),
-                    m1=np.zeros((5, 5)), m2=np.zeros((5, 5)), chol=np.zeros((5, 5)), vec=np.zeros(10),
-                    dx=np.zeros(5), x_ut=np.zeros((n_ut, 5)), C_ut=np.zeros((n_ut, 5, 5)),
+    return Smoother(lam=np.zeros(5), Lam=np.zeros((5, 5)), M=np.zeros((5, 5)), v=np.zeros(5), k=np.zeros(5),
+                    x=np.zeros(5), C=np.zeros((5, 5)), x_ut=np.zeros((n_ut, 5)), C_ut=np.zeros((n_ut, 5, 5)),
                     chi2=np.full(n_ut, np.nan))
 
 
