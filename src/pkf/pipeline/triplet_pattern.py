@@ -9,11 +9,12 @@ q/p from the VELO→UT kink), else as a VELO track.
 
 Occupancy and interrupts. Both searches open windows of fixed size around every seed,
 so their cost per hit grows with the hit density (lhcb-like minimum bias, CPU of one
-core: 3.3 µs per hit at ν = 7.6, 15 µs in events of 26–33k hits at ν = 30, 23 µs in one
-of 51k hits, the forward extension's full-range scans most of it; a ν = 1000 event of
-1.07 M hits ran for minutes and took 60 s to answer a Ctrl-C). An event with more than
-`MAX_EVENT_HITS` hits (50,000: 2.3× the largest of 120 events at ν = 7.6, about ν = 40,
-where a hit costs ≈ 7× as much as at ν = 7.6) is therefore not searched: it gets no
+core: 2.9 µs per hit at ν = 7.6 (`benchmarks/pattern_recognition.py`, 50 events; 3.2 µs
+before the UT outlier check's smoother lost its inverses), 15 µs in events of 26–33k hits
+at ν = 30, 23 µs in one of 51k hits, the forward extension's full-range scans most of it;
+a ν = 1000 event of 1.07 M hits ran for minutes and took 60 s to answer a Ctrl-C). An
+event with more than `MAX_EVENT_HITS` hits (50,000: 2.3× the largest of 120 events at
+ν = 7.6, about ν = 40, where a hit costs ≈ 7× as much as at ν = 7.6) is therefore not searched: it gets no
 candidates and is counted (`crowded_events`; `pkf reconstruct` reports it in run.json
 ``counts.events_over_hit_limit`` and on stderr). The other events are searched in groups
 of at most `GROUP_HITS` hits, whole events each (the result of an event depends only on

@@ -101,15 +101,23 @@ gap), so the search inflates their noise by 1 + (``scifi_model_noise``·q/p)². 
 degree-4 SciFi steps of the shipped set, 3000 MeV (6450 with the earlier 15-term steps)
 keeps the efficiency and halves the ghost rate at ν = 7.6.
 
-Cost (`benchmarks/pattern_recognition.py`, lhcb-like minimum bias at ν = 7.6, ~340 VELO
-tracks per event, one core): ≈ 15 ms per event, ≈ 45 µs per VELO track — in cycles per
-track roughly 40 % the SciFi searches from UT starts, 30 % the second-pass scans, 13 % the
-UT search, 10 % the final fits. What made it cheap, measured on the same events: the
-unrolled layer step (`pkf.params.formulas`, 200 → 55 ns), the two passes with taken hits
-(−35 %), fits through fixed hits as a straight loop (`_fit_fixed`, −8 %), the stereo
-requirement before the follow (``stereo_min_layers``, −5 %) and compiling without numba's
-reference counting (`pkf.jit.NO_REFCOUNT`, −22 %: the atomic reference-count updates of
-array views and inlined helpers' array arguments were 40 % of the CPU samples).
+Cost (`benchmarks/pattern_recognition.py`, lhcb-like minimum bias at ν = 7.6, ~330 VELO
+tracks per event, one core, this machine): ≈ 20.5 ms per event, ≈ 63 µs per VELO track
+(ν = 1: 2.3 ms, 34 µs; the scans' Hough entries and clusters grow with the hit density:
+forward time ∝ hits^1.5). Where the cycles go at ν = 7.6 (read-time-stamp counters around
+the stages, 50 events): first pass 67 %, second pass 33 %; the UT search with its start
+and refits 17 %, the node-state transports of the scans 15 %, the Hough entries and their
+sort 21 % (pass 1: 349 scans per event of 204 entries, pass 2: 121 full-range scans of
+638), cluster finding and line ranking 9 %, stereo confirmation 9 %, the combinatorial
+follow 15 %, the final fits (UT confirmation, fit, UT outlier check) 15 %. What made it
+cheap, measured on the same events: the unrolled layer step (`pkf.params.formulas`,
+200 → 55 ns), the two passes with taken hits (−35 %), fits through fixed hits as a
+straight loop (`_fit_fixed`, −8 %), the stereo requirement before the follow
+(``stereo_min_layers``, −5 %), compiling without numba's reference counting
+(`pkf.jit.NO_REFCOUNT`, −22 %: the atomic reference-count updates of array views and
+inlined helpers' array arguments were 40 % of the CPU samples) and the UT outlier
+check's smoother without matrix inverses (`outliers.smooth_ut_chi2`, −11 %, the same
+candidates bit for bit).
 
 The stages live in modules of this package: `options` (options and status codes),
 `prepare` (layout, sorted hits, cut tables), `records` (the kernels' NamedTuples),

@@ -11,7 +11,8 @@ carried one).
 After the final fit through the UT and SciFi hits (`kalman.fit_fixed`, a forward Kalman
 filter around the reference trajectory), a smoother runs back from the last SciFi layer to
 the first UT layer (`smooth_ut_chi2`, the modified Bryson–Frazier form: no matrix inverse
-per layer): its state at UT layer j uses every measurement. The χ² of the hit m on layer j against the track *without* it is
+per layer): its state at UT layer j uses every measurement. The χ² of the hit m on layer j
+against the track *without* it is
 
     χ²_j = r_s² / (σ² − H·C_s·Hᵀ),   r_s = m − H·x_s,
 
