@@ -72,8 +72,9 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, empty, np.zeros((0, 5)), np.zeros(0), np.zeros(0)
     state = np.column_stack([velo.x, velo.y, velo.tx, velo.ty])
-    forward = extend_velo_tracks(velo.event_id, state, velo.z, event_id, layer, u, sigma_u, geometry,
-                                 forward_extrapolator)
+    forward = extend_velo_tracks(
+        velo.event_id, state, velo.z, event_id, layer, u, sigma_u, geometry, forward_extrapolator
+    )
     velo_track = np.repeat(np.arange(n_tracks), np.diff(velo.offsets))
     fwd_track = forward.track_of_hit
     keep = (forward.found | forward.upstream)[fwd_track]
@@ -85,8 +86,12 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
     # track ids from 0 within each event (VELO tracks come sorted by event)
     first_of_event = np.searchsorted(velo.event_id, velo.event_id, side="left")
     track_id = track - first_of_event[track]
-    return (track_event.astype(np.int64), track_id.astype(np.int64), rows.astype(np.int64),
-            *_pattern_estimate(velo, forward))
+    return (
+        track_event.astype(np.int64),
+        track_id.astype(np.int64),
+        rows.astype(np.int64),
+        *_pattern_estimate(velo, forward),
+    )
 
 
 def _pattern_estimate(velo, forward):
@@ -103,10 +108,19 @@ def _pattern_estimate(velo, forward):
     return state, np.asarray(velo.z, dtype=np.float64), qop_var
 
 
-def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.ndarray, layer: np.ndarray,
-                       u: np.ndarray, v: np.ndarray, z: np.ndarray, sigma_u: np.ndarray,
-                       sigma_v: np.ndarray, max_event_hits: int | None = None,
-                       group_hits: int | None = None):
+def triplet_candidates(
+    geometry: Geometry,
+    forward_extrapolator,
+    event_id: np.ndarray,
+    layer: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    z: np.ndarray,
+    sigma_u: np.ndarray,
+    sigma_v: np.ndarray,
+    max_event_hits: int | None = None,
+    group_hits: int | None = None,
+):
     """Candidates of the hits of a chunk of events (per-hit arrays, sorted by event).
 
     Returns the `Candidates` (as `truth_candidates`, with the pattern's state estimate,
@@ -124,8 +138,9 @@ def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.nd
         columns = [c[rows_searched] for c in columns]
     parts = []
     for lo, hi in _event_groups(columns[0], group_hits):
-        ev, tr, rows, state, state_z, qop_var = _group_candidates(geometry, forward_extrapolator,
-                                                                  *(c[lo:hi] for c in columns))
+        ev, tr, rows, state, state_z, qop_var = _group_candidates(
+            geometry, forward_extrapolator, *(c[lo:hi] for c in columns)
+        )
         parts.append((ev, tr, rows + lo, state, state_z, qop_var))
     if not parts:
         return Candidates.empty()

@@ -207,16 +207,33 @@ class ForwardTracks(CsrTracks):
 
 
 def _new_output(n: int, n_fwd: int, n_ut: int) -> Output:
-    return Output(hits=np.full((n, n_fwd), -1, dtype=np.int64), q=np.full(n, np.nan), qvar=np.full(n, np.nan),
-                  chi2=np.full(n, np.nan), ndf=np.zeros(n, dtype=np.int64),
-                  status=np.full(n, STATUS_NOT_FOUND, dtype=np.int64), n_ut=np.zeros(n, dtype=np.int64),
-                  n_scifi=np.zeros(n, dtype=np.int64), from_scan=np.zeros(n, dtype=np.bool_),
-                  ut_chi2=np.full((n, n_ut), np.nan))
+    return Output(
+        hits=np.full((n, n_fwd), -1, dtype=np.int64),
+        q=np.full(n, np.nan),
+        qvar=np.full(n, np.nan),
+        chi2=np.full(n, np.nan),
+        ndf=np.zeros(n, dtype=np.int64),
+        status=np.full(n, STATUS_NOT_FOUND, dtype=np.int64),
+        n_ut=np.zeros(n, dtype=np.int64),
+        n_scifi=np.zeros(n, dtype=np.int64),
+        from_scan=np.zeros(n, dtype=np.bool_),
+        ut_chi2=np.full((n, n_ut), np.nan),
+    )
 
 
-def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
-                       geometry: Geometry, ext, options: ForwardOptions | None = None,
-                       **overrides) -> ForwardTracks:
+def extend_velo_tracks(
+    track_event,
+    velo_state,
+    z_state,
+    hit_event,
+    hit_layer,
+    hit_u,
+    hit_sigma,
+    geometry: Geometry,
+    ext,
+    options: ForwardOptions | None = None,
+    **overrides,
+) -> ForwardTracks:
     """Extend VELO tracks through the UT and the SciFi (docs/physics.md#pattern-recognition).
 
     track_event (n,): event id of each VELO track; velo_state (n, 4): (x, y, tx, ty) [mm]
@@ -232,14 +249,14 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
         options = ForwardOptions(**overrides)
     elif overrides:
         options = ForwardOptions(**(asdict(options) | overrides))
-    prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext,
-                   options)
+    prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext, options)
     n = prep.n_tracks
     out = _new_output(n, prep.lay.layer.size, prep.lay.n_ut)
     if n and prep.n_events:
         cfg = prep.cfg
-        tr = Transport(ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)),
-                       float(cfg.opt[O_MODEL]))
+        tr = Transport(
+            ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)), float(cfg.opt[O_MODEL])
+        )
         lay = prep.lay
         pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
         inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
@@ -251,7 +268,16 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     hit_rows = prep.rows[out.hits[found]] if found.any() else np.zeros(0, dtype=np.int64)
     return ForwardTracks(
-        offsets=offsets, hit_rows=hit_rows.astype(np.int64), n_ut=out.n_ut, n_scifi=out.n_scifi,
-        qop=out.q, qop_var=out.qvar, chi2=out.chi2, ndf=out.ndf, status=out.status,
-        below_table_p_min=np.abs(out.q) > 1.0 / prep.p_table, from_scan=out.from_scan, ut_chi2=out.ut_chi2,
+        offsets=offsets,
+        hit_rows=hit_rows.astype(np.int64),
+        n_ut=out.n_ut,
+        n_scifi=out.n_scifi,
+        qop=out.q,
+        qop_var=out.qvar,
+        chi2=out.chi2,
+        ndf=out.ndf,
+        status=out.status,
+        below_table_p_min=np.abs(out.q) > 1.0 / prep.p_table,
+        from_scan=out.from_scan,
+        ut_chi2=out.ut_chi2,
     )
