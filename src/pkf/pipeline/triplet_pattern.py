@@ -9,11 +9,12 @@ q/p from the VELO→UT kink), else as a VELO track.
 
 Occupancy and interrupts. Both searches open windows of fixed size around every seed,
 so their cost per hit grows with the hit density (lhcb-like minimum bias, CPU of one
-core: 3.3 µs per hit at ν = 7.6, 15 µs in events of 26–33k hits at ν = 30, 23 µs in one
-of 51k hits, the forward extension's full-range scans most of it; a ν = 1000 event of
-1.07 M hits ran for minutes and took 60 s to answer a Ctrl-C). An event with more than
-`MAX_EVENT_HITS` hits (50,000: 2.3× the largest of 120 events at ν = 7.6, about ν = 40,
-where a hit costs ≈ 7× as much as at ν = 7.6) is therefore not searched: it gets no
+core: 2.9 µs per hit at ν = 7.6 (`benchmarks/pattern_recognition.py`, 50 events; 3.2 µs
+before the UT outlier check's smoother lost its inverses), 15 µs in events of 26–33k hits
+at ν = 30, 23 µs in one of 51k hits, the forward extension's full-range scans most of it;
+a ν = 1000 event of 1.07 M hits ran for minutes and took 60 s to answer a Ctrl-C). An
+event with more than `MAX_EVENT_HITS` hits (50,000: 2.3× the largest of 120 events at
+ν = 7.6, about ν = 40, where a hit costs ≈ 7× as much as at ν = 7.6) is therefore not searched: it gets no
 candidates and is counted (`crowded_events`; `pkf reconstruct` reports it in run.json
 ``counts.events_over_hit_limit`` and on stderr). The other events are searched in groups
 of at most `GROUP_HITS` hits, whole events each (the result of an event depends only on
@@ -71,8 +72,9 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, empty, np.zeros((0, 5)), np.zeros(0), np.zeros(0)
     state = np.column_stack([velo.x, velo.y, velo.tx, velo.ty])
-    forward = extend_velo_tracks(velo.event_id, state, velo.z, event_id, layer, u, sigma_u, geometry,
-                                 forward_extrapolator)
+    forward = extend_velo_tracks(
+        velo.event_id, state, velo.z, event_id, layer, u, sigma_u, geometry, forward_extrapolator
+    )
     velo_track = np.repeat(np.arange(n_tracks), np.diff(velo.offsets))
     fwd_track = forward.track_of_hit
     keep = (forward.found | forward.upstream)[fwd_track]
@@ -84,8 +86,12 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
     # track ids from 0 within each event (VELO tracks come sorted by event)
     first_of_event = np.searchsorted(velo.event_id, velo.event_id, side="left")
     track_id = track - first_of_event[track]
-    return (track_event.astype(np.int64), track_id.astype(np.int64), rows.astype(np.int64),
-            *_pattern_estimate(velo, forward))
+    return (
+        track_event.astype(np.int64),
+        track_id.astype(np.int64),
+        rows.astype(np.int64),
+        *_pattern_estimate(velo, forward),
+    )
 
 
 def _pattern_estimate(velo, forward):
@@ -102,10 +108,19 @@ def _pattern_estimate(velo, forward):
     return state, np.asarray(velo.z, dtype=np.float64), qop_var
 
 
-def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.ndarray, layer: np.ndarray,
-                       u: np.ndarray, v: np.ndarray, z: np.ndarray, sigma_u: np.ndarray,
-                       sigma_v: np.ndarray, max_event_hits: int | None = None,
-                       group_hits: int | None = None):
+def triplet_candidates(
+    geometry: Geometry,
+    forward_extrapolator,
+    event_id: np.ndarray,
+    layer: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    z: np.ndarray,
+    sigma_u: np.ndarray,
+    sigma_v: np.ndarray,
+    max_event_hits: int | None = None,
+    group_hits: int | None = None,
+):
     """Candidates of the hits of a chunk of events (per-hit arrays, sorted by event).
 
     Returns the `Candidates` (as `truth_candidates`, with the pattern's state estimate,
@@ -123,8 +138,9 @@ def triplet_candidates(geometry: Geometry, forward_extrapolator, event_id: np.nd
         columns = [c[rows_searched] for c in columns]
     parts = []
     for lo, hi in _event_groups(columns[0], group_hits):
-        ev, tr, rows, state, state_z, qop_var = _group_candidates(geometry, forward_extrapolator,
-                                                                  *(c[lo:hi] for c in columns))
+        ev, tr, rows, state, state_z, qop_var = _group_candidates(
+            geometry, forward_extrapolator, *(c[lo:hi] for c in columns)
+        )
         parts.append((ev, tr, rows + lo, state, state_z, qop_var))
     if not parts:
         return Candidates.empty()

@@ -101,15 +101,23 @@ gap), so the search inflates their noise by 1 + (``scifi_model_noise``·q/p)². 
 degree-4 SciFi steps of the shipped set, 3000 MeV (6450 with the earlier 15-term steps)
 keeps the efficiency and halves the ghost rate at ν = 7.6.
 
-Cost (`benchmarks/pattern_recognition.py`, lhcb-like minimum bias at ν = 7.6, ~340 VELO
-tracks per event, one core): ≈ 15 ms per event, ≈ 45 µs per VELO track — in cycles per
-track roughly 40 % the SciFi searches from UT starts, 30 % the second-pass scans, 13 % the
-UT search, 10 % the final fits. What made it cheap, measured on the same events: the
-unrolled layer step (`pkf.params.formulas`, 200 → 55 ns), the two passes with taken hits
-(−35 %), fits through fixed hits as a straight loop (`_fit_fixed`, −8 %), the stereo
-requirement before the follow (``stereo_min_layers``, −5 %) and compiling without numba's
-reference counting (`pkf.jit.NO_REFCOUNT`, −22 %: the atomic reference-count updates of
-array views and inlined helpers' array arguments were 40 % of the CPU samples).
+Cost (`benchmarks/pattern_recognition.py`, lhcb-like minimum bias at ν = 7.6, ~330 VELO
+tracks per event, one core, this machine): ≈ 20.5 ms per event, ≈ 63 µs per VELO track
+(ν = 1: 2.3 ms, 34 µs; the scans' Hough entries and clusters grow with the hit density:
+forward time ∝ hits^1.5). Where the cycles go at ν = 7.6 (read-time-stamp counters around
+the stages, 50 events): first pass 67 %, second pass 33 %; the UT search with its start
+and refits 17 %, the node-state transports of the scans 15 %, the Hough entries and their
+sort 21 % (pass 1: 349 scans per event of 204 entries, pass 2: 121 full-range scans of
+638), cluster finding and line ranking 9 %, stereo confirmation 9 %, the combinatorial
+follow 15 %, the final fits (UT confirmation, fit, UT outlier check) 15 %. What made it
+cheap, measured on the same events: the unrolled layer step (`pkf.params.formulas`,
+200 → 55 ns), the two passes with taken hits (−35 %), fits through fixed hits as a
+straight loop (`_fit_fixed`, −8 %), the stereo requirement before the follow
+(``stereo_min_layers``, −5 %), compiling without numba's reference counting
+(`pkf.jit.NO_REFCOUNT`, −22 %: the atomic reference-count updates of array views and
+inlined helpers' array arguments were 40 % of the CPU samples) and the UT outlier
+check's smoother without matrix inverses (`outliers.smooth_ut_chi2`, −11 %, the same
+candidates bit for bit).
 
 The stages live in modules of this package: `options` (options and status codes),
 `prepare` (layout, sorted hits, cut tables), `records` (the kernels' NamedTuples),
@@ -199,16 +207,33 @@ class ForwardTracks(CsrTracks):
 
 
 def _new_output(n: int, n_fwd: int, n_ut: int) -> Output:
-    return Output(hits=np.full((n, n_fwd), -1, dtype=np.int64), q=np.full(n, np.nan), qvar=np.full(n, np.nan),
-                  chi2=np.full(n, np.nan), ndf=np.zeros(n, dtype=np.int64),
-                  status=np.full(n, STATUS_NOT_FOUND, dtype=np.int64), n_ut=np.zeros(n, dtype=np.int64),
-                  n_scifi=np.zeros(n, dtype=np.int64), from_scan=np.zeros(n, dtype=np.bool_),
-                  ut_chi2=np.full((n, n_ut), np.nan))
+    return Output(
+        hits=np.full((n, n_fwd), -1, dtype=np.int64),
+        q=np.full(n, np.nan),
+        qvar=np.full(n, np.nan),
+        chi2=np.full(n, np.nan),
+        ndf=np.zeros(n, dtype=np.int64),
+        status=np.full(n, STATUS_NOT_FOUND, dtype=np.int64),
+        n_ut=np.zeros(n, dtype=np.int64),
+        n_scifi=np.zeros(n, dtype=np.int64),
+        from_scan=np.zeros(n, dtype=np.bool_),
+        ut_chi2=np.full((n, n_ut), np.nan),
+    )
 
 
-def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma,
-                       geometry: Geometry, ext, options: ForwardOptions | None = None,
-                       **overrides) -> ForwardTracks:
+def extend_velo_tracks(
+    track_event,
+    velo_state,
+    z_state,
+    hit_event,
+    hit_layer,
+    hit_u,
+    hit_sigma,
+    geometry: Geometry,
+    ext,
+    options: ForwardOptions | None = None,
+    **overrides,
+) -> ForwardTracks:
     """Extend VELO tracks through the UT and the SciFi (docs/physics.md#pattern-recognition).
 
     track_event (n,): event id of each VELO track; velo_state (n, 4): (x, y, tx, ty) [mm]
@@ -224,14 +249,14 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
         options = ForwardOptions(**overrides)
     elif overrides:
         options = ForwardOptions(**(asdict(options) | overrides))
-    prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext,
-                   options)
+    prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext, options)
     n = prep.n_tracks
     out = _new_output(n, prep.lay.layer.size, prep.lay.n_ut)
     if n and prep.n_events:
         cfg = prep.cfg
-        tr = Transport(ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)),
-                       float(cfg.opt[O_MODEL]))
+        tr = Transport(
+            ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)), float(cfg.opt[O_MODEL])
+        )
         lay = prep.lay
         pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
         inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
@@ -243,7 +268,16 @@ def extend_velo_tracks(track_event, velo_state, z_state, hit_event, hit_layer, h
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     hit_rows = prep.rows[out.hits[found]] if found.any() else np.zeros(0, dtype=np.int64)
     return ForwardTracks(
-        offsets=offsets, hit_rows=hit_rows.astype(np.int64), n_ut=out.n_ut, n_scifi=out.n_scifi,
-        qop=out.q, qop_var=out.qvar, chi2=out.chi2, ndf=out.ndf, status=out.status,
-        below_table_p_min=np.abs(out.q) > 1.0 / prep.p_table, from_scan=out.from_scan, ut_chi2=out.ut_chi2,
+        offsets=offsets,
+        hit_rows=hit_rows.astype(np.int64),
+        n_ut=out.n_ut,
+        n_scifi=out.n_scifi,
+        qop=out.q,
+        qop_var=out.qvar,
+        chi2=out.chi2,
+        ndf=out.ndf,
+        status=out.status,
+        below_table_p_min=np.abs(out.q) > 1.0 / prep.p_table,
+        from_scan=out.from_scan,
+        ut_chi2=out.ut_chi2,
     )

@@ -52,44 +52,93 @@ from pkf.seeding.forward.ut import finalize, ut_candidates, ut_start
 
 
 def _ranked(k: int, n_fwd: int, fill: int = 0) -> Ranked:
-    return Ranked(np.full((k, n_fwd), fill, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros(k),
-                  np.zeros(k), np.zeros(k), np.zeros(1, dtype=np.int64))
+    return Ranked(
+        np.full((k, n_fwd), fill, dtype=np.int64),
+        np.zeros(k, dtype=np.int64),
+        np.zeros(k),
+        np.zeros(k),
+        np.zeros(k),
+        np.zeros(1, dtype=np.int64),
+    )
 
 
 def _kf_work(n_fwd: int) -> KFWork:
     def ints():
         return np.zeros(n_fwd, dtype=np.int64)
 
-    return KFWork(pred_x=np.zeros((n_fwd, 5)), post_x=np.zeros((n_fwd, 5)), pred_P=np.zeros((n_fwd, 5, 5)),
-                  post_P=np.zeros((n_fwd, 5, 5)), tmp=np.zeros((5, 5)), pht=np.zeros(5), upred=np.zeros(n_fwd),
-                  sbase=np.zeros(n_fwd), post_chi=np.zeros(n_fwd), ch_chi=np.zeros((n_fwd, MAX_CHILDREN)),
-                  n_ch=ints(), it=ints(), post_n=ints(), post_nf=ints(), post_skip=ints(), post_mask=ints(),
-                  post_att=ints(), path=ints(), ch_hit=np.zeros((n_fwd, MAX_CHILDREN), dtype=np.int64),
-                  x_init=np.zeros((1, 5)), P_init=np.zeros((1, 5, 5)))
+    return KFWork(
+        pred_x=np.zeros((n_fwd, 5)),
+        post_x=np.zeros((n_fwd, 5)),
+        pred_P=np.zeros((n_fwd, 5, 5)),
+        post_P=np.zeros((n_fwd, 5, 5)),
+        tmp=np.zeros((5, 5)),
+        pht=np.zeros(5),
+        upred=np.zeros(n_fwd),
+        sbase=np.zeros(n_fwd),
+        post_chi=np.zeros(n_fwd),
+        ch_chi=np.zeros((n_fwd, MAX_CHILDREN)),
+        n_ch=ints(),
+        it=ints(),
+        post_n=ints(),
+        post_nf=ints(),
+        post_skip=ints(),
+        post_mask=ints(),
+        post_att=ints(),
+        path=ints(),
+        ch_hit=np.zeros((n_fwd, MAX_CHILDREN), dtype=np.int64),
+        x_init=np.zeros((1, 5)),
+        P_init=np.zeros((1, 5, 5)),
+    )
 
 
 def _scan(n_fwd: int, n_sf: int, n_x: int, max_nodes_q: int, max_entries: int, max_bins: int) -> Scan:
     n_sf_nodes = (max_nodes_q, n_sf)
-    entries = Entries(t=np.zeros(max_entries), bin=np.zeros(max_entries, dtype=np.int64),
-                      layer=np.zeros(max_entries, dtype=np.int64), hit=np.zeros(max_entries, dtype=np.int64),
-                      order=np.zeros(max_entries, dtype=np.int64), bin_count=np.zeros(max_bins + 1, dtype=np.int64),
-                      bin_start=np.zeros(max_bins + 2, dtype=np.int64))
-    line = LineWork(chosen=np.full(n_x, -1, dtype=np.int64), rx=np.zeros(n_x), x_z=np.zeros(n_x), d_l=np.zeros(n_x),
-                    cand_e=np.zeros((n_x, MAX_PER_LAYER), dtype=np.int64), cand_r=np.zeros((n_x, MAX_PER_LAYER)),
-                    cand_n=np.zeros(n_x, dtype=np.int64))
-    return Scan(nodes=NodeStates(np.zeros(max_nodes_q), *(np.zeros(n_sf_nodes) for _ in range(4))),
-                inv_x=np.zeros((n_x, max_nodes_q)), inv_q=np.zeros((n_x, max_nodes_q)),
-                inv_dq=np.zeros((n_x, max_nodes_q)), entries=entries,
-                cl_bin=np.zeros(max_entries + 1, dtype=np.int64), cl_npop=np.zeros(max_entries + 1, dtype=np.int64),
-                cl_key=np.zeros(max_entries + 1), line=line, f_z=np.zeros(n_fwd),
-                mask_pop=np.zeros(1 << n_x, dtype=np.int64))
+    entries = Entries(
+        t=np.zeros(max_entries),
+        bin=np.zeros(max_entries, dtype=np.int64),
+        layer=np.zeros(max_entries, dtype=np.int64),
+        hit=np.zeros(max_entries, dtype=np.int64),
+        order=np.zeros(max_entries, dtype=np.int64),
+        bin_count=np.zeros(max_bins + 1, dtype=np.int64),
+        bin_start=np.zeros(max_bins + 2, dtype=np.int64),
+    )
+    line = LineWork(
+        chosen=np.full(n_x, -1, dtype=np.int64),
+        rx=np.zeros(n_x),
+        x_z=np.zeros(n_x),
+        d_l=np.zeros(n_x),
+        cand_e=np.zeros((n_x, MAX_PER_LAYER), dtype=np.int64),
+        cand_r=np.zeros((n_x, MAX_PER_LAYER)),
+        cand_n=np.zeros(n_x, dtype=np.int64),
+    )
+    return Scan(
+        nodes=NodeStates(np.zeros(max_nodes_q), *(np.zeros(n_sf_nodes) for _ in range(4))),
+        inv_x=np.zeros((n_x, max_nodes_q)),
+        inv_q=np.zeros((n_x, max_nodes_q)),
+        inv_dq=np.zeros((n_x, max_nodes_q)),
+        entries=entries,
+        cl_bin=np.zeros(max_entries + 1, dtype=np.int64),
+        cl_npop=np.zeros(max_entries + 1, dtype=np.int64),
+        cl_key=np.zeros(max_entries + 1),
+        line=line,
+        f_z=np.zeros(n_fwd),
+        mask_pop=np.zeros(1 << n_x, dtype=np.int64),
+    )
 
 
 def _smoother(n_ut: int) -> Smoother:
-    return Smoother(x=np.zeros(5), C=np.zeros((5, 5)), A=np.zeros((5, 5)), inv=np.zeros((5, 5)),
-                    m1=np.zeros((5, 5)), m2=np.zeros((5, 5)), chol=np.zeros((5, 5)), vec=np.zeros(10),
-                    dx=np.zeros(5), x_ut=np.zeros((n_ut, 5)), C_ut=np.zeros((n_ut, 5, 5)),
-                    chi2=np.full(n_ut, np.nan))
+    return Smoother(
+        lam=np.zeros(5),
+        Lam=np.zeros((5, 5)),
+        M=np.zeros((5, 5)),
+        v=np.zeros(5),
+        k=np.zeros(5),
+        x=np.zeros(5),
+        C=np.zeros((5, 5)),
+        x_ut=np.zeros((n_ut, 5)),
+        C_ut=np.zeros((n_ut, 5, 5)),
+        chi2=np.full(n_ut, np.nan),
+    )
 
 
 def new_work(lay, cfg, max_entries: int, max_bins: int) -> Work:
@@ -101,27 +150,60 @@ def new_work(lay, cfg, max_entries: int, max_bins: int) -> Work:
     path = np.full(n_fwd, -1, dtype=np.int64)
     scan = _scan(n_fwd, n_sf, lay.x_layers.size, max_nodes_q, max_entries, max_bins)
     x_layer_counts(lay, bool(iopt[I_STATION_X] != 0), scan.mask_pop)
-    filt = Filter(ref=Reference(np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5))),
-                  ws=_kf_work(n_fwd), mode=np.zeros(n_fwd, dtype=np.int64), fixed=np.full(n_fwd, -1, dtype=np.int64),
-                  x0=np.zeros(5), P0=np.zeros((5, 5)))
-    return Work(filt=filt, leaf_b=Leaf(path, np.zeros(5), np.zeros((5, 5))),
-                leaf_c=Leaf(path, np.zeros(5), np.zeros((5, 5))),
-                scan=scan,
-                top_none=_ranked(0, n_fwd), cand=_ranked(int(iopt[I_MAX_CLUSTERS]), n_fwd, -1),
-                best_key=np.zeros(1), smooth=_smoother(lay.n_ut))
+    filt = Filter(
+        ref=Reference(np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5))),
+        ws=_kf_work(n_fwd),
+        mode=np.zeros(n_fwd, dtype=np.int64),
+        fixed=np.full(n_fwd, -1, dtype=np.int64),
+        x0=np.zeros(5),
+        P0=np.zeros((5, 5)),
+    )
+    return Work(
+        filt=filt,
+        leaf_b=Leaf(path, np.zeros(5), np.zeros((5, 5))),
+        leaf_c=Leaf(path, np.zeros(5), np.zeros((5, 5))),
+        scan=scan,
+        top_none=_ranked(0, n_fwd),
+        cand=_ranked(int(iopt[I_MAX_CLUSTERS]), n_fwd, -1),
+        best_key=np.zeros(1),
+        smooth=_smoother(lay.n_ut),
+    )
 
 
 def new_pass_work(n_fwd: int, n_ut: int, n_ut_candidates: int, n_tracks: int, n_hits: int) -> PassWork:
     """Per-track scratch of the two passes (`PassWork`)."""
     k = n_ut_candidates
-    utc = UtCandidates(np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k, dtype=np.int64),
-                       np.zeros(k, dtype=np.int64), np.zeros((k, 12)), np.zeros((k, 5)), np.zeros((k, 5)))
-    kept = Kept(np.zeros(n_tracks, dtype=np.bool_), np.zeros((n_tracks, 5)), np.zeros((n_tracks, 5)),
-                np.zeros((n_tracks, 12)), np.zeros((n_tracks, n_ut), dtype=np.int64), np.zeros((n_tracks, 4)),
-                np.zeros(n_tracks, dtype=np.int64))
-    return PassWork(top_ut=_ranked(k, n_fwd), utc=utc, start=Start(np.zeros(5), np.zeros(5), np.zeros(12)),
-                    s_v=np.zeros(5), ut_best=np.full(n_fwd, -1, dtype=np.int64),
-                    ut_hits=np.full(n_fwd, -1, dtype=np.int64), kept=kept, used=np.zeros(n_hits, dtype=np.bool_))
+    utc = UtCandidates(
+        np.zeros(k),
+        np.zeros(k),
+        np.zeros(k),
+        np.zeros(k),
+        np.zeros(k),
+        np.zeros(k, dtype=np.int64),
+        np.zeros(k, dtype=np.int64),
+        np.zeros((k, 12)),
+        np.zeros((k, 5)),
+        np.zeros((k, 5)),
+    )
+    kept = Kept(
+        np.zeros(n_tracks, dtype=np.bool_),
+        np.zeros((n_tracks, 5)),
+        np.zeros((n_tracks, 5)),
+        np.zeros((n_tracks, 12)),
+        np.zeros((n_tracks, n_ut), dtype=np.int64),
+        np.zeros((n_tracks, 4)),
+        np.zeros(n_tracks, dtype=np.int64),
+    )
+    return PassWork(
+        top_ut=_ranked(k, n_fwd),
+        utc=utc,
+        start=Start(np.zeros(5), np.zeros(5), np.zeros(12)),
+        s_v=np.zeros(5),
+        ut_best=np.full(n_fwd, -1, dtype=np.int64),
+        ut_hits=np.full(n_fwd, -1, dtype=np.int64),
+        kept=kept,
+        used=np.zeros(n_hits, dtype=np.bool_),
+    )
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
@@ -195,8 +277,11 @@ def _extend(tr, lay, hits, cfg, w, pw, track, n_utc, second_pass, out):
         for c in range(n_c):
             ok_c = finalize(tr, lay, hits, cfg, w, track, c, ut_best, n_utc > 0, out)
             final_ok = final_ok or ok_c
-            if final_ok and pvalue_ok(out.chi2[t], out.ndf[t] + 1, cfg.cuts.good) \
-                    and out.n_scifi[t] >= n_fwd - n_ut - 1:
+            if (
+                final_ok
+                and pvalue_ok(out.chi2[t], out.ndf[t] + 1, cfg.cuts.good)
+                and out.n_scifi[t] >= n_fwd - n_ut - 1
+            ):
                 done = True  # a good, (nearly) complete extension: no need to look further
                 break
     return final_ok, done

@@ -271,21 +271,19 @@ class Scan(NamedTuple):
 
 
 class Smoother(NamedTuple):
-    """Scratch of the UT outlier check (`outliers`): the smoothed deviation x (5) and
-    covariance C (5, 5) of the current layer, the smoother gain A, the inverse of a
-    predicted covariance, two products, Cholesky scratch (5, 5) and (10), a deviation
-    (5), per UT layer the smoothed x_ut (n_ut, 5) and C_ut (n_ut, 5, 5) and the χ² of its
-    hit against the rest of the track (n_ut; NaN: no hit)."""
+    """Scratch of the UT outlier check (`outliers`): the adjoint variables λ̂ (5) and Λ̂
+    (5, 5) of the modified Bryson–Frazier smoother, a product (5, 5), two vectors (5), the
+    smoothed deviation x (5) and covariance C (5, 5) of the current layer, per UT layer the
+    smoothed x_ut (n_ut, 5) and C_ut (n_ut, 5, 5) and the χ² of its hit against the rest
+    of the track (n_ut; NaN: no hit)."""
 
+    lam: np.ndarray
+    Lam: np.ndarray
+    M: np.ndarray
+    v: np.ndarray
+    k: np.ndarray
     x: np.ndarray
     C: np.ndarray
-    A: np.ndarray
-    inv: np.ndarray
-    m1: np.ndarray
-    m2: np.ndarray
-    chol: np.ndarray
-    vec: np.ndarray
-    dx: np.ndarray
     x_ut: np.ndarray
     C_ut: np.ndarray
     chi2: np.ndarray
