@@ -15,7 +15,7 @@ with Δz = z_to − z_from, w = qop·p_min (the paper's (q/p)^k up to the factor
 which keeps every coefficient O(deflection)), and the deviations from the *ideal
 direction* of a particle from the origin that hits the UT point (x, y, z_from):
 
-    δtx = tx − t0x,  t0x = x/z_from + bend·qop,     δty = ty − t0y,  t0y = y/z_from.
+    δtx = tx − t0x,  t0x = x/z_from + βx·qop,     δty = ty − t0y,  t0y = y/z_from + βy·qop.
 
 The bend. A particle from the origin with initial slope tx(0) gets, to first order in the
 deflection, tx(z) = tx(0) + qop·∫_0^z g dz' and x(z) = tx(0)·z + qop·∫_0^z (z − z')·g dz'
@@ -23,12 +23,20 @@ with g(z') = −κ·B_y(0, 0, z') (the equations of motion for small slopes). El
 
     tx(z_UT) − x(z_UT)/z_UT = qop·∫_0^{z_UT} g(z')·z'/z_UT dz'  ⇒  bend = ∫_0^{z_UT} g·z'/z_UT dz'
 
-[MeV], computed from the field model on the z axis (`bend_integral`). For the lhcb-like
-field map bend = 38.215 MeV; an RK4 track from the origin on the axis has
-tx − x/z = 38.219 MeV·qop (the residual is the N·(1+tx²) factor). Off axis the true
-bend of a track from the origin varies (≈ 40 at x/z = 0.2, ≈ 21 at y/z = 0.2, because
-the fringe field falls with |y|); like the paper and LHCb we keep one constant and let
-the B_k, C_k terms absorb the difference to first order.
+[MeV] on the z axis (`bend_integral`: 38.215 MeV for the lhcb-like map). The paper takes
+this constant (βx = bend, βy = 0). Off axis the slope offset of a particle from the origin
+varies a lot: 40 MeV at x/z = 0.25, 12 MeV at |y/z| = 0.25 (the field falls towards the
+yoke's fringe), and βy reaches ±15 MeV at the corners; with a constant bend a 1.5 GeV
+particle from the origin has δtx up to 18 mrad, δty 10 mrad, and the first-order δt terms
+of eq. 21 then err by millimetres. The table therefore uses LHCb's quadratic ideal
+direction (their BENDX, BENDX_X2, BENDX_Y2, BENDY_XY),
+
+    βx = bend + bend_x2·(x/z)² + bend_y2·(y/z)²,     βy = bend_xy·(x/z)·(y/z)     [MeV],
+
+fitted by `fit_bend_model` to RK4 particles from the origin on a 21×21 grid of (x/z, y/z)
+(lhcb-like: 38.38, 28.0, −432.7, 240.1 MeV; largest residual 0.7 MeV, i.e. 0.45 mrad at
+1.5 GeV; the offset's non-linearity in q/p is ≤ 0.4 MeV at 1.5 GeV). Tables of older files
+have bend_x2 = bend_y2 = bend_xy = 0: the paper's constant.
 
 Tabulation (`tabulate_ut_to_scifi`). For every grid point (X/z, Y/z) of a regular
 nx × ny grid on |x/z|, |y/z| ≤ slope_range at z_from and every q/p node, the ideal
@@ -44,8 +52,39 @@ least-squares fit well conditioned (condition number of the degree-9 Vandermonde
 matrix ≈ 1e3). Each set of deviations is fitted by least squares with a polynomial in w
 without a constant term (at qop = 0 the straight line is exact). RK4 step: max_step
 (default 20 mm: for 3–5 GeV the extrapolations of a 20 mm and a 10 mm table differ by
-≈ 4 µm RMS in x; 100 mm steps would put single trajectories ≈ 20 µm off). The full
-50×50×20 tabulation takes ≈ 12 s on one core (50 000 RK4+Jacobian propagations).
+≈ 4 µm RMS in x; 100 mm steps would put single trajectories ≈ 20 µm off).
+
+The soft range p_low ≤ p < p_min (1.5–3 GeV in the shipped table; LHCb's implementation
+covers 1.5 GeV). One polynomial in w over ±1/1.5 GeV does not work: at 1.5 GeV the
+trajectories from the grid's outer part bend out of the SciFi acceptance (55 % of the grid
+points at |w| = 1 for |x|, |y| at z_to beyond 3200, 2400 mm), out of the map (41 % beyond
+4000 mm) or curl in the fringe field (NaN for |y/z| ≳ 0.15), tx reaches 1–3, and the
+deviations there are no polynomial: a degree-9 fit on all nodes is NaN, on the nodes inside
+the map only it errs by 56 µm RMS at 30–100 GeV (2.8 µm today) and 160 µm at 3–100 GeV,
+because the least squares spreads the outer nodes' misfit over small |w| (measured on a
+50×100 grid, 30 nodes). So the eq. 21 polynomials keep their range |w| ≤ 1 — identical in
+form and nodes to the paper's table — and beyond it, for 1 < |w| ≤ w_max = p_min/p_low,
+each of them (A, B and C of each output) continues linearly from the edge plus a correction
+per charge sign:
+
+    P(w) = P(s) + P′(s)·e + Σ_{k=2..L} D^s_k(x, y)·e^k,     s = sign w, e = w − s,
+
+which is continuous with its first derivative at |w| = 1 (3 GeV). The D^s_k are tabulated
+on the same grid (interpolated with eqs. 22–23) by a weighted least-squares fit to the RK4
+deviations at n_soft = 12 Chebyshev nodes of e in (0, w_max − 1) per sign: full weight for
+the nodes whose trajectory ends inside |x| < 4000, |y| < 3200 mm at z_to (the map, and
+≥ 800 mm beyond the SciFi acceptance, so that the six-point stencil of a track inside the
+acceptance is fitted where that track is), weight 0.01 for the other finite ones (they
+keep the polynomial a physical, monotonic continuation where the trajectories leave:
+those need no accuracy, only harmlessness), 0 for curling ones. L = 8 for the A blocks and
+6 for B, C (x RMS at 1.5–3 GeV, luminous-region tracks, with the curling nodes weighted
+0.01: L = 6/4 164 µm, 8/6 77 µm, 10/8 128 µm). Weighting the curling nodes towards the
+linear continuation (weights 1e-4–1e-2) tames the polynomials where no particle goes but makes
+1.5–3 GeV states anywhere on the grid 6–10× worse (0.3 → 1.8–3.0 mm RMS, near the yoke,
+|y/z| > 0.2), so it is not done: there the polynomials are finite but can be far off (> 20 m at z_to for 1.6 % of
+uniformly spread 1.5–3 GeV states, all of them particles that curl in the magnet). The
+soft coefficients are stored as float32 (< 1 µm at z_to). The full 50×100 tabulation with
+20 + 2×12 nodes takes ≈ 150–240 s on one loaded core (220 000 RK4+Jacobian propagations).
 
 Interpolation (paper eqs. 22–23). Every coefficient is interpolated at (x/z, y/z) from
 six grid values: with (X, Y) the closest grid point, ξ = (x/z − X)/ΔX, ψ = (y/z − Y)/ΔY,
@@ -65,36 +104,43 @@ outside (|x/z| ≤ 0.301 for the default grid, which covers the UT acceptance |x
 |x/z| ≤ 0.29); further out the coefficients are frozen (their x, y derivatives are
 zero) and the error grows. Such states still return status 0.
 
-Below p_min. The polynomials are fitted on |w| ≤ 1 only. For |w| > 1 (p < p_min)
+Below the table's range. For |w| > w_max (p < p_low; w_max = 1 without a soft range)
 `ut_to_scifi_extrapolate` returns STATUS_BELOW_P_MIN (4) and continues every polynomial
-*linearly* from the edge, P(w) = P(w_c) + P′(w_c)·(w − w_c) with w_c = ±1: the result is
-finite for any finite qop, continuous and differentiable in qop at |w| = 1 (the Jacobian
-stays the exact derivative of what is returned), and the deflection, which is dominated
-by its linear term, is still roughly right — unlike evaluating at the clamped qop, which
-would give the deflection of a p_min track to any softer one. It is not accurate: the
-caller must treat status 4 as a failure of the parametrization.
+*linearly* from the edge, P(w) = P(w_c) + P′(w_c)·(w − w_c) with |w_c| = w_max: the result
+is finite for any finite qop, continuous and differentiable in qop at the edge (the
+Jacobian stays the exact derivative of what is returned), and the deflection, which is
+dominated by its linear term, is still roughly right — unlike evaluating at the clamped
+qop, which would give the deflection of a p_low track to any softer one. It is not
+accurate: the caller must treat status 4 as a failure of the parametrization (the
+parametrized fit then takes RK4 through the field map, `pkf.params.transport`).
 
 Localised evaluation (the forward search, `pkf.seeding.forward_steps`). A q/p scan of one
 track transports the same start point many times: `localize_ut_to_scifi` interpolates the
-coefficients once at (x/z, y/z) of that point, with their x and y derivatives, and
-`ut_to_scifi_extrapolate_localized` evaluates eq. 21 with them corrected to first order in
-(x, y) — one interpolation per track instead of one per hypothesis (the Jacobian columns
-x, y use the derivatives at the localisation point). Below p_min it continues each
-polynomial linearly (as above) or, for the search, quadratically,
-P(w) = P(w_c) + P′(w_c)·e + ½P″(w_c)·e², e = w − w_c: on lhcb-like minimum bias the x error
-at the first SciFi layer for 2.0–2.5 GeV tracks is ≈ 15 mm (median) instead of ≈ 30 mm,
-and the error is mostly a common rescaling of the deflection that the search absorbs in
-q/p (measured by `tests/seeding/test_forward.py`).
+coefficients (eq. 21 and soft range) once at (x/z, y/z) of that point, with their x and y
+derivatives, and `ut_to_scifi_extrapolate_localized` evaluates eq. 21 with them corrected
+to first order in (x, y) — one interpolation per track instead of one per hypothesis (the
+Jacobian columns x, y use the derivatives at the localisation point). Inside the covered
+range it equals `ut_to_scifi_extrapolate` at the localisation point; beyond it each
+polynomial is continued linearly (as above) or, for the search, quadratically with the
+edge's second derivative (of the soft correction; of the polynomial for a table without
+soft range — with the 3 GeV table this gave the 2.0–2.5 GeV x error at the first SciFi
+layer ≈ 15 mm instead of ≈ 30 mm, measured by `tests/seeding/test_forward.py`).
 
-Accuracy (tests/params/test_ut_to_scifi.py, lhcb-like map, default table). Against RK4
-through the same map at the first SciFi layer, tracks from the luminous region with
-3–100 GeV: x RMS ≈ 39 µm overall, ≈ 86 µm at 3–5 GeV, ≈ 5.5 µm at 30–100 GeV. At grid
-points on the ideal direction the error is ≈ 4 µm RMS: most of the error is the
-interpolation in y/z of a quantity that is *not smooth* in the map, because the 100 mm
-trilinear map samples the field's y-curvature in 100 mm cells, so the map trajectory
-ripples with y/z on about the grid step (the map itself differs from the analytic
-field by ≈ 120 µm RMS in x at 3–5 GeV). A 50×100 grid cuts the x error by ≈ 40% (≈ 25 s); in a
-smooth field an 11×11 grid is already accurate to a few µm.
+Accuracy (tests/params/test_ut_to_scifi_soft.py, the shipped lhcb-like 50×100 table).
+Against RK4 through the same map at the first SciFi layer, tracks from the luminous region
+that cross the first and last SciFi layers inside the acceptance (x RMS, unscattered /
+Highland-scattered in x/X0 = 0.37): 1.5–3 GeV 69/179 µm, 3–5 GeV 36/41 µm, 5–10 GeV
+19/22 µm, 10–30 GeV 7.7/8.1 µm, 30–100 GeV 2.8/2.7 µm, 3–100 GeV 16.5/18.9 µm (the
+3 GeV table with the constant bend on the same tracks: 41/48, 19.5/23, 7.8/8.2, 2.8/2.7,
+18.2/21.4 µm; 1.5–3 GeV not covered). 1.5–3 GeV anywhere on the grid (random δt of 3 mrad),
+inside the acceptance: 0.1–0.3 mm RMS, dominated by |y/z| > 0.2 near the yoke. At 3–5 GeV
+the error is mostly the interpolation in y/z of a quantity that is *not smooth* in the
+map, because the 100 mm trilinear map samples the field's y-curvature in 100 mm cells, so
+the map trajectory ripples with y/z on about the grid step (the map itself differs from the
+analytic field by ≈ 120 µm RMS in x at 3–5 GeV); a 50×100 grid has half the y/z step of the
+paper's 50×50 (tests/params/test_ut_to_scifi.py checks the 50×50 table: x RMS ≈ 39 µm at
+3–100 GeV, ≈ 86 µm at 3–5 GeV for all tracks with |x/z|, |y/z| < 0.25); in a smooth field an
+11×11 grid is already accurate to a few µm above 3 GeV and to ≈ 27 µm at 1.5–3 GeV.
 """
 
 from __future__ import annotations
