@@ -452,9 +452,12 @@ def test_reference_trajectory_equals_parametrized_step(geometry, ext):
 
 
 def test_table_continuation_below_p_min(ext, sample, geometry):
-    """Below 3 GeV: the quadratic continuation is continuous at |w| = 1, its Jacobian is
-    the derivative of what it returns, and it predicts the first SciFi layer of 2–2.5 GeV
-    particles better than the linear continuation of the table module."""
+    """The table covers p ≥ 1.5 GeV (its soft range below p_min = 3 GeV, `pkf.params.ut_to_scifi`):
+    the localised evaluation is continuous at 3 GeV and at 1.5 GeV, below 1.5 GeV the
+    quadratic continuation's Jacobian is the derivative of what it returns, and 2–2.5 GeV
+    particles are predicted at the first SciFi layer by the table itself (status OK, the
+    same with either continuation), to the scattering (median 11 mm from the VELO state;
+    the 3 GeV table's quadratic continuation: ≈ 15 mm, its linear one ≈ 30 mm)."""
     poly, ref = new_table_buffers(ext)
     s = np.array([150.0, -80.0, 0.07, -0.03, 0.0])
     localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s[0], s[1], poly, ref)
@@ -466,20 +469,21 @@ def test_table_continuation_below_p_min(ext, sample, geometry):
         st = ut_to_scifi_extrapolate_localized(ext.uts_meta, poly, ref, eloss, state, o, j, True)
         return st, o, j
 
-    # continuity at the edge (w = ±1 at the energy-loss corrected q/p)
-    for sign in (1.0, -1.0):
-        q_edge = sign / (3000.0 + eloss)
-        lo = s.copy()
-        lo[4] = q_edge * (1 - 1e-9)
-        hi = s.copy()
-        hi[4] = q_edge * (1 + 1e-9)
-        st_lo, o_lo, _ = f(lo)
-        st_hi, o_hi, _ = f(hi)
-        assert st_lo == TRANSPORT_OK and st_hi == TRANSPORT_BELOW_P_MIN
-        np.testing.assert_allclose(o_lo, o_hi, atol=1e-5)
+    # continuity at 3 GeV (w = ±1 at the energy-loss corrected q/p) and at 1.5 GeV (w = ±2)
+    for p_edge, beyond in ((3000.0, TRANSPORT_OK), (1500.0, TRANSPORT_BELOW_P_MIN)):
+        for sign in (1.0, -1.0):
+            q_edge = sign / (p_edge + eloss)
+            lo = s.copy()
+            lo[4] = q_edge * (1 - 1e-9)
+            hi = s.copy()
+            hi[4] = q_edge * (1 + 1e-9)
+            st_lo, o_lo, _ = f(lo)
+            st_hi, o_hi, _ = f(hi)
+            assert st_lo == TRANSPORT_OK and st_hi == beyond
+            np.testing.assert_allclose(o_lo, o_hi, atol=1e-5)
     # Jacobian of the continuation = finite differences
     s2 = s.copy()
-    s2[4] = 1.0 / 1800.0
+    s2[4] = 1.0 / 1300.0
     st, out, jac = f(s2)
     assert st == TRANSPORT_BELOW_P_MIN
     eps = np.array([1e-3, 1e-3, 1e-6, 1e-6, 1e-9])
@@ -512,7 +516,11 @@ def test_table_continuation_below_p_min(ext, sample, geometry):
         localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
         for quad in (True, False):
             o, j = np.zeros(5), np.zeros((5, 5))
-            ut_to_scifi_extrapolate_localized(ext.uts_meta, poly, ref, eloss, s_ut, o, j, quad)
+            assert ut_to_scifi_extrapolate_localized(ext.uts_meta, poly, ref, eloss, s_ut, o, j, quad) == TRANSPORT_OK
             errors[quad].append(abs(o[0] - t1_x[k]))
     assert len(errors[True]) > 20
-    assert np.median(errors[True]) < 0.8 * np.median(errors[False])
+    assert errors[True] == errors[False]
+    # median 11.2 mm on this sample, dominated by the VELO state and the scattering between
+    # the VELO and the SciFi (≈ 4 mrad over ≈ 5 m at 2 GeV); the 3 GeV table's quadratic
+    # continuation gave ≈ 15 mm and its linear one ≈ 30 mm on the same particles
+    assert np.median(errors[True]) < 13.0, (np.median(errors[True]), np.percentile(errors[True], [25, 75]))

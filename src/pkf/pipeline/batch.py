@@ -36,7 +36,7 @@ from pkf.io.schemas import (
 )
 from pkf.params.parameter_set import load_parameters
 from pkf.params.transport import ParametrizedExtrapolator
-from pkf.params.ut_to_scifi import META_P_MIN
+from pkf.params.ut_to_scifi import covered_p_min
 from pkf.pipeline import triplet_pattern
 from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
 from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
@@ -299,14 +299,18 @@ def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarra
 
 
 def _below_p_min(ext, batch: TrackBatch, result) -> int:
-    """Long tracks a parametrized fit extrapolated from the UT to the SciFi below its table's
-    p_min, by RK4 through the field map (`pkf.params.transport`): fitted |q/p| at the first hit
-    above 1/p_min. 0 for the other fitters."""
-    if not isinstance(ext, ParametrizedExtrapolator) or ext.uts_meta[META_P_MIN] <= 0.0:
+    """Long tracks a parametrized fit extrapolated from the UT to the SciFi below the momentum
+    its table covers (`covered_p_min`: p_low of the soft range, else p_min), by RK4 through the
+    field map (`pkf.params.transport`): fitted |q/p| at the first hit above 1/that. 0 for the
+    other fitters."""
+    if not isinstance(ext, ParametrizedExtrapolator):
+        return 0
+    p_covered = covered_p_min(ext.uts_meta)
+    if p_covered <= 0.0:
         return 0
     qop = result.locations["first_hit"][1][:, 4]
     fitted = (result.status == STATUS_OK) & (batch.track_type == TRACK_LONG)
-    return int(np.sum(fitted & (np.abs(qop) * ext.uts_meta[META_P_MIN] > 1.0)))
+    return int(np.sum(fitted & (np.abs(qop) * p_covered > 1.0)))
 
 
 def _chi2_table(fitter, geometry, batch, result, track_event, track_id, mc_particle, fraction, ghost):

@@ -1,6 +1,6 @@
 """The `pkf tune` stage: fit the parametrized extrapolations on a simulated dataset (docs/parameters.md#how-the-coefficients-are-tuned).
 
-Before any work (the UT→SciFi tabulation alone takes ~30–90 s) the output file is
+Before any work (the UT→SciFi tabulation alone takes ~2–4 min) the output file is
 checked (:func:`check_output_file`) and every step of the geometry must have the state
 pairs its fits need (:func:`pkf.params.tuning.required_pairs`); too little data is
 refused with one line that names the steps and the events it would take, rather than a
@@ -31,7 +31,10 @@ from pkf.params.ut_to_scifi import META_SIZE, UTSciFiTable, tabulate_ut_to_scifi
 from pkf.pipeline.inputs import align_mc, column, load_dataset, production_truth
 from pkf.pipeline.progress import progress_bar
 
-UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4)
+UT_TO_SCIFI_P_MIN = 3000.0  # MeV (paper §4): the eq. 21 polynomials cover |q/p| ≤ 1/p_min
+#: MeV: the soft range p_low ≤ p < p_min continues them (LHCb's implementation covers 1.5 GeV);
+#: below it the parametrized fit's UT→SciFi step is RK4 through the field map (flagged)
+UT_TO_SCIFI_P_LOW = 1500.0
 #: (x/z, y/z) grid points of the UT→SciFi table. The paper uses 50×50; 50×100 halves the
 #: spacing in y/z, across which the field (and its 100 mm map) varies fastest: the table's
 #: error at 3–5 GeV drops from 86 to 53 µm RMS (measured at the first SciFi layer).
@@ -50,7 +53,8 @@ def ut_to_scifi_table(geometry: Geometry, field_map, progress: bool | None = Fal
             with progress_bar(UT_TO_SCIFI_GRID[0], "tune: UT→SciFi table", unit="row", progress=progress) as bar:
                 return tabulate_ut_to_scifi(field_map, z_from=float(geometry.layer_z[last]),
                                             z_to=float(geometry.layer_z[last + 1]), p_min=UT_TO_SCIFI_P_MIN,
-                                            nx=UT_TO_SCIFI_GRID[0], ny=UT_TO_SCIFI_GRID[1], progress=bar.update)
+                                            p_low=UT_TO_SCIFI_P_LOW, nx=UT_TO_SCIFI_GRID[0],
+                                            ny=UT_TO_SCIFI_GRID[1], progress=bar.update)
     return None
 
 
