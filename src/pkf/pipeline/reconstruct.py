@@ -23,7 +23,7 @@ import pkf
 from pkf.errors import InputError
 from pkf.geometry.detector import BUILTIN_GEOMETRIES
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
-from pkf.io.stream import file_sha256
+from pkf.io.stream import close_readers, file_sha256
 from pkf.pipeline import triplet_pattern
 from pkf.pipeline.batch import metrics_from_counts
 from pkf.pipeline.config import ReconstructionConfig
@@ -129,7 +129,10 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                 events_done.finish(entry["name"])
 
             t0 = time.perf_counter()
-            execute(todo, use_workers, scheduler, on_done, events_done.advance)
+            try:
+                execute(todo, use_workers, scheduler, on_done, events_done.advance)
+            finally:
+                close_readers()  # the input files this process read partitions of
             work_wall = time.perf_counter() - t0
         run = _run_json(plan, run_config, done, dataset_path)
         run["execution"] = {"workers": None if scheduler else use_workers, "scheduler": scheduler,
