@@ -139,16 +139,17 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
 
     The partition is reconstructed in groups of whole events of about :data:`PROGRESS_HITS`
     hits; ``progress(n_events)`` is called after each group. The rows are those of one
-    batch of the whole partition (concatenated in event order; each table sorted as one).
+    batch of the whole partition: the groups' rows in event order, each table built and
+    sorted once (:func:`~pkf.pipeline.batch.run_tables`).
 
     max_events: only the first events (used to warm up numba's cache before starting workers).
     """
     import numpy as np
-    import pyarrow as pa
 
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
-    from pkf.pipeline.batch import RUN_SCHEMAS, context_for, reconstruct_batch
+    from pkf.pipeline.batch import batch_rows, context_for, reconstruct_batch, run_tables
+    from pkf.pipeline.rows import RowBlocks
     from pkf.pipeline.config import ReconstructionConfig
 
     config = ReconstructionConfig.from_dict(task.config)
@@ -167,7 +168,7 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
     if not groups:  # a partition without hits
         return reconstruct_batch(ctx, Dataset(Path(task.dataset), {}, parts["hits"], parts.get("particles"),
                                               parts.get("mc_hits")))
-    tables: dict[str, list] = {}
+    rows = RowBlocks()
     summary = None
     for i, (lo, hi) in enumerate(groups):
         first = int(hit_events[lo])
@@ -175,14 +176,13 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
         part = {name: (table.slice(lo, hi - lo) if name == "hits" else _slice_events(table, first, following))
                 for name, table in parts.items()}
         data = Dataset(Path(task.dataset), {}, part["hits"], part.get("particles"), part.get("mc_hits"))
-        group_tables, group_summary = reconstruct_batch(ctx, data)
-        for name, table in group_tables.items():
-            tables.setdefault(name, []).append(table.select(RUN_SCHEMAS[name].names).cast(RUN_SCHEMAS[name]))
+        group_rows, group_summary = batch_rows(ctx, data)
+        rows.extend(group_rows)
         summary = add_summaries(summary, group_summary)
         if progress is not None:
             progress(group_summary["events"])
         CtrlC.check()
-    return {name: pa.concat_tables(t) for name, t in tables.items()}, summary
+    return run_tables(rows), summary
 
 
 def run_partition(task: PartitionTask, progress: Callable[[int], None] | None = None) -> dict:
