@@ -156,6 +156,8 @@ def _raise_first(checks: Sequence[Callable[[], None]]) -> None:
 def _first_true(mask: pa.Array | pa.ChunkedArray | np.ndarray) -> int | None:
     """Index of the first True of a boolean mask (nulls count as False), or None."""
     if isinstance(mask, (pa.Array, pa.ChunkedArray)):
+        if not pc.any(mask).as_py():  # none (nulls skipped): no conversion of the bit mask
+            return None
         mask = pc.fill_null(mask, False).to_numpy(zero_copy_only=False)
     mask = np.asarray(mask, dtype=bool)
     if mask.size == 0:
