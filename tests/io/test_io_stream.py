@@ -96,3 +96,27 @@ def test_row_reads_in_any_order_and_after_the_file_changes(tmp_path, monkeypatch
     for lo, hi in ranges:
         assert stream.read_rows(scan, lo, hi).equals(changed.slice(lo, hi - lo))
     stream.close_readers()
+
+
+def test_a_forked_worker_does_not_use_the_parents_open_readers(tmp_path):
+    """Local workers are forked after the parent has read a partition (the kernels' warm-up):
+    they must read with their own files, not continue the parent's decoders."""
+    import multiprocessing
+    import os
+
+    if not hasattr(os, "register_at_fork"):
+        pytest.skip("no fork")
+    f = tmp_path / "hits.parquet"
+    pq.write_table(_hits(range(6)), f, row_group_size=10)
+    scan = _scan(f)
+    whole = read_table(f, HITS, name="hits")
+    assert stream.read_rows(scan, 0, 4).equals(whole.slice(0, 4))  # the parent's reader stops at row 4
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        assert pool.apply(_open_readers_in_child) == 0
+    assert stream.read_rows(scan, 4, 30).equals(whole.slice(4, 26))
+    stream.close_readers()
+
+
+def _open_readers_in_child() -> int:
+    return len(getattr(stream._READERS, "open", {}))

@@ -257,6 +257,17 @@ class _ForwardReader:
 _READERS = threading.local()  # per thread (Dask runs tasks in threads): {(file, names): _ForwardReader}
 
 
+def _forget_readers_after_fork() -> None:
+    """In a forked worker: start without the parent's readers (their open files and positions
+    are the parent's; a worker reads its partitions with its own)."""
+    global _READERS
+    _READERS = threading.local()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_readers_after_fork)
+
+
 def _reader(file: Path, names: tuple[str, ...]) -> _ForwardReader:
     """This thread's reader of ``file`` and ``names`` (a new one if the file changed on disk)."""
     readers = getattr(_READERS, "open", None)
