@@ -48,7 +48,7 @@ RUN_SCHEMAS = {"candidates": CANDIDATES, "chi2": CHI2, "states": STATES, "pulls"
                "track_states": TRACK_STATES}
 
 
-class _Clock:
+class StageClock:
     """Adds wall and CPU seconds of a ``with`` block to ``timing[stage]``."""
 
     def __init__(self, timing: dict, stage: str):
@@ -224,7 +224,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
                "tracks": {n: 0 for n in fitter_names}, "fit": {n: {"wall_s": 0.0, "tracks": 0, "nodes": 0}
                                                               for n in fitter_names}}
     layer = column(chunk, "layer", np.int64)
-    with _Clock(timing, "pattern"):
+    with StageClock(timing, "pattern"):
         if ctx.pattern == "truth":
             candidates = truth_candidates(ev, layer, hit_particle)
         else:
@@ -273,7 +273,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
         _warm_up(ctx.fitters_ext, batch, seeds, seed_covs, ctx.fit_options, ctx.beamline_ext)
         ctx.warmed = True
     for fitter, ext in ctx.fitters_ext:
-        with _Clock(timing, f"fit.{fitter.name}") as clock:
+        with StageClock(timing, f"fit.{fitter.name}") as clock:
             result = fitter.fit(ext, batch, ctx.fit_options[fitter.name], seeds, seed_covs, ctx.beamline_ext,
                                 track_states=ctx.track_states)
         stats = summary["fit"][fitter.name]

@@ -142,21 +142,25 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
     batch of the whole partition: the groups' rows in event order, each table built and
     sorted once (:func:`~pkf.pipeline.batch.run_tables`).
 
+    The summary's ``timing`` also has the CPU and wall seconds of reading the rows (``read``),
+    of reconstructing the groups (``batches``: pattern and fit kernels, MC matching, rows) and
+    of building the tables (``tables``).
+
     max_events: only the first events (used to warm up numba's cache before starting workers).
     """
     import numpy as np
 
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
-    from pkf.pipeline.batch import batch_rows, context_for, reconstruct_batch, run_tables
+    from pkf.pipeline.batch import StageClock, batch_rows, context_for, reconstruct_batch, run_tables
     from pkf.pipeline.rows import RowBlocks
     from pkf.pipeline.config import ReconstructionConfig
 
     config = ReconstructionConfig.from_dict(task.config)
     ctx = context_for(_geometry(task.dataset, config.geometry), config)
-    parts = {}
-    for name, (scan, lo, hi) in task.tables.items():
-        parts[name] = read_rows(scan, lo, hi)
+    timing: dict = {}
+    with StageClock(timing, "read"):
+        parts = {name: read_rows(scan, lo, hi) for name, (scan, lo, hi) in task.tables.items()}
     if max_events is not None:
         ev = parts["hits"].column("event_id").to_numpy()
         last = np.unique(ev)[:max_events][-1]
@@ -176,13 +180,16 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
         part = {name: (table.slice(lo, hi - lo) if name == "hits" else _slice_events(table, first, following))
                 for name, table in parts.items()}
         data = Dataset(Path(task.dataset), {}, part["hits"], part.get("particles"), part.get("mc_hits"))
-        group_rows, group_summary = batch_rows(ctx, data)
+        with StageClock(timing, "batches"):
+            group_rows, group_summary = batch_rows(ctx, data)
         rows.extend(group_rows)
         summary = add_summaries(summary, group_summary)
         if progress is not None:
             progress(group_summary["events"])
         CtrlC.check()
-    return run_tables(rows), summary
+    with StageClock(timing, "tables"):
+        tables = run_tables(rows)
+    return tables, add_summaries(summary, {"timing": timing})
 
 
 def run_partition(task: PartitionTask, progress: Callable[[int], None] | None = None) -> dict:
@@ -192,18 +199,21 @@ def run_partition(task: PartitionTask, progress: Callable[[int], None] | None = 
     """
     from pkf.io.atomic import atomic_write_json, atomic_write_table
     from pkf.io.stream import file_sha256
-    from pkf.pipeline.batch import RUN_SCHEMAS
+    from pkf.pipeline.batch import RUN_SCHEMAS, StageClock
     from pkf.pipeline.resume import JOURNAL
 
     tables, summary = reconstruct_task(task, progress=progress)
     root = Path(task.staging)
     files = {}
-    for table_name, table in tables.items():
-        rel = Path(table_name) / f"{task.name}.parquet"
-        (root / table_name).mkdir(exist_ok=True)
-        atomic_write_table(table, root / rel, schema=RUN_SCHEMAS[table_name])
-        files[table_name] = {"path": rel.as_posix(), "sha256": file_sha256(root / rel), "rows": table.num_rows}
-    entry = {"name": task.name, "key": task.key, "files": files, "summary": summary}
+    timing: dict = {}
+    with StageClock(timing, "write"):  # the Parquet files and their SHA-256
+        for table_name, table in tables.items():
+            rel = Path(table_name) / f"{task.name}.parquet"
+            (root / table_name).mkdir(exist_ok=True)
+            atomic_write_table(table, root / rel, schema=RUN_SCHEMAS[table_name])
+            files[table_name] = {"path": rel.as_posix(), "sha256": file_sha256(root / rel), "rows": table.num_rows}
+    entry = {"name": task.name, "key": task.key, "files": files,
+             "summary": add_summaries(summary, {"timing": timing})}
     atomic_write_json(entry, root / JOURNAL / f"{task.name}.json")
     return entry
 
