@@ -38,7 +38,7 @@ from pkf.params.transport import ParametrizedExtrapolator
 from pkf.params.ut_to_scifi import META_P_MIN
 from pkf.pipeline import triplet_pattern
 from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
-from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
+from pkf.pipeline.matching import match_tracks, reconstructible_sets
 from pkf.pipeline.rows import Coded, RowBlocks
 from pkf.pipeline.triplet_pattern import crowded_events, triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
@@ -106,6 +106,11 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
             track_states=config.track_states,
         )
     return _CONTEXTS[key]
+
+
+def _n_events(event_id: np.ndarray) -> int:
+    """Events among hit rows grouped by event (what ``np.unique(event_id).size`` sorts for)."""
+    return int(event_id.size and 1 + np.count_nonzero(event_id[1:] != event_id[:-1]))
 
 
 def _true_momentum(production: dict, keys: np.ndarray) -> np.ndarray | None:
@@ -220,7 +225,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
         production = production_truth(data)
     fitter_names = [f.name for f, _ in ctx.fitters_ext]
     timing: dict = {}
-    summary = {"events": int(np.unique(ev).size), "hits": int(chunk.num_rows), "candidates": 0,
+    summary = {"events": _n_events(ev), "hits": int(chunk.num_rows), "candidates": 0,
                "tracks": {n: 0 for n in fitter_names}, "fit": {n: {"wall_s": 0.0, "tracks": 0, "nodes": 0}
                                                               for n in fitter_names}}
     layer = column(chunk, "layer", np.int64)
@@ -256,13 +261,14 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
         scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
                                  == SUBDETECTORS.index("scifi"), minlength=n_tracks)
         is_long = scifi_hits > 0
-        long_rec = reconstructible_particles(geometry, hit_key, layer)
+        reconstructible = reconstructible_sets(geometry, hit_key, layer)
+        long_rec = reconstructible["long"]
         summary["pattern"] = pattern_counts(mc_id[is_long], long_rec, _true_momentum(production, long_rec))
         # VELO tracks are matched on their VELO hits alone: a VELO track with a wrong
         # forward extension is a correct VELO track (and a ghost long track)
         velo_hit = geometry.layer_subdetector[layer[cand_row]] == SUBDETECTORS.index("velo")
         velo_id, _, _ = match_tracks(track_of_hit[velo_hit], hit_key[cand_row][velo_hit], n_tracks)
-        velo_rec = velo_reconstructible_particles(geometry, hit_key, layer)
+        velo_rec = reconstructible["velo"]
         summary["velo"] = pattern_counts(velo_id[np.bincount(track_of_hit[velo_hit], minlength=n_tracks) > 0],
                                          velo_rec, _true_momentum(production, velo_rec))
     else:
