@@ -103,11 +103,15 @@ def event_groups(event_id, max_hits: int) -> list[tuple[int, int]]:
     return groups
 
 
-def _slice_events(table, first_event: int, next_event: int | None):
-    """The rows of events [first_event, next_event) of a table sorted by event (None: to the end)."""
+def _slice_events(table, first_event: int, next_event: int | None, e=None):
+    """The rows of events [first_event, next_event) of a table sorted by event (None: to the end).
+
+    e: the table's event_id column as numpy, if at hand (a table of several chunks is copied
+    into one array to make it).
+    """
     import numpy as np
 
-    e = table.column("event_id").to_numpy()
+    e = table.column("event_id").to_numpy() if e is None else e
     lo = int(np.searchsorted(e, first_event, side="left"))
     hi = e.size if next_event is None else int(np.searchsorted(e, next_event, side="left"))
     return table.slice(lo, hi - lo)
@@ -167,7 +171,8 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
         for name, table in parts.items():
             e = table.column("event_id").to_numpy()
             parts[name] = table.slice(0, int(np.searchsorted(e, last, side="right")))
-    hit_events = parts["hits"].column("event_id").to_numpy()
+    events = {name: table.column("event_id").to_numpy() for name, table in parts.items()}  # once per partition
+    hit_events = events["hits"]
     groups = event_groups(hit_events, PROGRESS_HITS)
     if not groups:  # a partition without hits
         return reconstruct_batch(ctx, Dataset(Path(task.dataset), {}, parts["hits"], parts.get("particles"),
@@ -177,7 +182,8 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
     for i, (lo, hi) in enumerate(groups):
         first = int(hit_events[lo])
         following = int(hit_events[groups[i + 1][0]]) if i + 1 < len(groups) else None
-        part = {name: (table.slice(lo, hi - lo) if name == "hits" else _slice_events(table, first, following))
+        part = {name: (table.slice(lo, hi - lo) if name == "hits" else
+                       _slice_events(table, first, following, events[name]))
                 for name, table in parts.items()}
         data = Dataset(Path(task.dataset), {}, part["hits"], part.get("particles"), part.get("mc_hits"))
         with StageClock(timing, "batches"):
