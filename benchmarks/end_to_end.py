@@ -12,7 +12,12 @@ Per run:
 - **kernel CPU**: run.json ``timing`` — the CPU seconds of the ``pattern`` stage (VELO
   search, forward extension, upstream pass, seeds: compiled kernels and their thin Python
   glue) plus every ``fit.<fitter>`` stage;
-- **share** = kernel / total, and events per CPU second.
+- **share** = kernel / total, and events per CPU second;
+- **the rest, by stage** (run.json ``timing`` of checkouts that record them): ``validate`` (the
+  dataset's scan, hashes and consistency, before any work), ``read`` (the partitions' rows),
+  ``batch`` (in the groups' reconstruction but outside the kernels: MC matching, truth, rows),
+  ``tables`` (building the run tables), ``write`` (Parquet files and their SHA-256), and
+  ``start+`` = total − all of them (Python, imports, kernel loading from numba's cache, run.json).
 
 The start-up (Python, imports, loading ~40 cached kernels: 2–4 s) is paid once per
 command, so the share grows with the number of events: measure it on the acceptance's
@@ -20,7 +25,7 @@ command, so the share grows with the number of events: measure it on the accepta
 
     python benchmarks/end_to_end.py --events 200 [--pileup 7.6] [--rounds 2] \
         [--checkouts /tmp/old .] [--fitter parametrized] [--json out.json]
-    python benchmarks/end_to_end.py --dataset DATASET [--cache-root DIR] ...
+    python benchmarks/end_to_end.py --dataset DATASET [--cache-root DIR [--no-warm-up]] ...
 """
 
 from __future__ import annotations
@@ -66,8 +71,18 @@ def _run(dataset: Path, out: Path, env: dict, fitters: list[str]) -> dict:
     timing = run["timing"]
     pattern = timing.get("pattern", {}).get("cpu_s", 0.0)
     fit = sum(f["cpu_s"] for f in timing.get("fit", {}).values())
-    return {"total_cpu_s": total, "pattern_cpu_s": pattern, "fit_cpu_s": fit,
-            "kernel_share": (pattern + fit) / total, "events": run["counts"]["events"]}
+    row = {"total_cpu_s": total, "pattern_cpu_s": pattern, "fit_cpu_s": fit,
+           "kernel_share": (pattern + fit) / total, "events": run["counts"]["events"]}
+    stages = {s: timing[s]["cpu_s"] for s in STAGES if s in timing}
+    if len(stages) == len(STAGES):
+        row["stages_cpu_s"] = stages | {"batch": stages["batches"] - pattern - fit}
+    return row
+
+
+#: run.json timing stages outside the kernels (recorded since issue 18.4); ``batches`` holds the kernels.
+STAGES = ("validate", "read", "batches", "tables", "write")
+#: the columns of the split: ``batch`` = batches − pattern − fit, ``start+`` = total − the others.
+SPLIT = ("validate", "read", "batch", "tables", "write")
 
 
 def main(argv=None) -> None:
@@ -81,6 +96,8 @@ def main(argv=None) -> None:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--cache-root", type=Path, help="keep the numba caches here between invocations")
+    parser.add_argument("--no-warm-up", action="store_true", help="the caches under --cache-root are warm: "
+                        "skip the untimed first run of each checkout")
     args = parser.parse_args(argv)
     fitters = args.fitter or ["parametrized"]
     checkouts = [c.resolve() for c in args.checkouts]
@@ -88,7 +105,7 @@ def main(argv=None) -> None:
         scratch = Path(tmp)
         dataset = args.dataset or _simulate(args, scratch)
         envs = [_env(c, args.cache_root or scratch, i) for i, c in enumerate(checkouts)]
-        for env in envs:  # compile or load the kernels: not timed
+        for env in envs if not (args.no_warm_up and args.cache_root) else []:  # compile or load kernels: not timed
             _run(dataset, scratch / "warm", env, fitters)
         rows = []
         for r in range(args.rounds):
@@ -100,13 +117,15 @@ def main(argv=None) -> None:
                 row.update(checkout=str(checkouts[i]), round=r)
                 rows.append(row)
     print(f"pkf reconstruct --workers 1, fitters {','.join(fitters)}: CPU seconds per run")
-    print(f"{'checkout':40s} {'round':>5s} {'events':>6s} {'total':>8s} {'pattern':>8s} {'fit':>7s} "
-          f"{'other':>7s} {'share':>6s} {'ev/CPU s':>8s}")
+    print(f"{'checkout':30s} {'round':>5s} {'events':>6s} {'total':>7s} {'pattern':>7s} {'fit':>6s} "
+          f"{'other':>6s} {'share':>6s} {'ev/CPU s':>8s} | " + " ".join(f"{s:>8s}" for s in SPLIT + ("start+",)))
     for row in rows:
         other = row["total_cpu_s"] - row["pattern_cpu_s"] - row["fit_cpu_s"]
-        print(f"{row['checkout'][-40:]:40s} {row['round']:5d} {row['events']:6d} {row['total_cpu_s']:8.2f} "
-              f"{row['pattern_cpu_s']:8.2f} {row['fit_cpu_s']:7.2f} {other:7.2f} {row['kernel_share']:6.3f} "
-              f"{row['events'] / row['total_cpu_s']:8.2f}")
+        split = row.get("stages_cpu_s")
+        parts = [split[s] for s in SPLIT] + [other - sum(split[s] for s in SPLIT)] if split else []
+        print(f"{row['checkout'][-30:]:30s} {row['round']:5d} {row['events']:6d} {row['total_cpu_s']:7.2f} "
+              f"{row['pattern_cpu_s']:7.2f} {row['fit_cpu_s']:6.2f} {other:6.2f} {row['kernel_share']:6.3f} "
+              f"{row['events'] / row['total_cpu_s']:8.2f} | " + " ".join(f"{x:8.2f}" for x in parts))
     if args.json:
         args.json.write_text(json.dumps({"fitters": fitters, "rows": rows}, indent=1))
 

@@ -74,3 +74,49 @@ def test_nan_in_a_late_batch(tmp_path):
     pq.write_table(t.set_column(4, HITS.field("u"), pa.array(u)), f)
     with pytest.raises(InputError, match=r"column 'u': row 13 \(event_id=2, hit_id=3\) is NaN"):
         _scan(f)
+
+
+def test_row_reads_in_any_order_and_after_the_file_changes(tmp_path, monkeypatch):
+    """read_rows keeps each file open at the end of its last read (decoding each row once when
+    the ranges come in order); ranges behind it, in later row groups, of other column sets, or
+    of a file rewritten since, give the same rows as a whole read."""
+    monkeypatch.setattr(stream, "READ_BATCH_ROWS", 4)
+    f = tmp_path / "hits.parquet"
+    pq.write_table(_hits(range(8)), f, row_group_size=7)
+    scan = _scan(f)
+    whole = read_table(f, HITS, name="hits")
+    ranges = [(0, 3), (3, 5), (5, 12), (12, 13), (30, 38), (2, 9), (9, 40), (0, 40), (21, 22), (1, 2)]
+    for lo, hi in ranges:
+        assert stream.read_rows(scan, lo, hi).equals(whole.slice(lo, hi - lo))
+        cols = stream.read_rows(scan, lo, hi, ["hit_id", "event_id"])
+        assert cols.equals(whole.select(["hit_id", "event_id"]).slice(lo, hi - lo))
+    changed = _hits(range(8), first_hit=100)
+    pq.write_table(changed, f, row_group_size=5)
+    scan = _scan(f)
+    for lo, hi in ranges:
+        assert stream.read_rows(scan, lo, hi).equals(changed.slice(lo, hi - lo))
+    stream.close_readers()
+
+
+def test_a_forked_worker_does_not_use_the_parents_open_readers(tmp_path):
+    """Local workers are forked after the parent has read a partition (the kernels' warm-up):
+    they must read with their own files, not continue the parent's decoders."""
+    import multiprocessing
+    import os
+
+    if not hasattr(os, "register_at_fork"):
+        pytest.skip("no fork")
+    f = tmp_path / "hits.parquet"
+    pq.write_table(_hits(range(6)), f, row_group_size=10)
+    scan = _scan(f)
+    whole = read_table(f, HITS, name="hits")
+    assert stream.read_rows(scan, 0, 4).equals(whole.slice(0, 4))  # the parent's reader stops at row 4
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        assert pool.apply(_open_readers_in_child) == 0
+    assert stream.read_rows(scan, 4, 30).equals(whole.slice(4, 26))
+    stream.close_readers()
+
+
+def _open_readers_in_child() -> int:
+    return len(getattr(stream._READERS, "open", {}))

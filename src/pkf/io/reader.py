@@ -156,6 +156,8 @@ def _raise_first(checks: Sequence[Callable[[], None]]) -> None:
 def _first_true(mask: pa.Array | pa.ChunkedArray | np.ndarray) -> int | None:
     """Index of the first True of a boolean mask (nulls count as False), or None."""
     if isinstance(mask, (pa.Array, pa.ChunkedArray)):
+        if not pc.any(mask).as_py():  # none (nulls skipped): no conversion of the bit mask
+            return None
         mask = pc.fill_null(mask, False).to_numpy(zero_copy_only=False)
     mask = np.asarray(mask, dtype=bool)
     if mask.size == 0:
@@ -698,48 +700,46 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
     Raises:
         InputError: one line naming the file, the column and the first bad row.
     """
+    from pkf.io.area_kernel import AREA_CHECKS, first_bad_area_rows
+
     key = ("event_id", "hit_id", "layer")
     layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)
-    valid = (layer >= 0) & (layer < area.u_min.size)  # other layers are reported by validate_hit_layers
-    layer = np.where(valid, layer, 0)
-    u = table.column("u").to_numpy()
-    sigma_u = table.column("sigma_u").to_numpy()
-    v = table.column("v").to_numpy(zero_copy_only=False)  # NaN where null (strips)
-    sigma_v = table.column("sigma_v").to_numpy(zero_copy_only=False)
-    pixel = ~np.isnan(v)
-    extent_u = (area.u_max - area.u_min)[layer]
-    extent_v = (area.v_max - area.v_min)[layer]
-    tol_u = AREA_TOLERANCE_SIGMAS * sigma_u + AREA_MARGIN_MM
-    tol_v = AREA_TOLERANCE_SIGMAS * np.where(pixel, sigma_v, 0.0) + AREA_MARGIN_MM
+    u = _float_values(table, "u")
+    sigma_u = _float_values(table, "sigma_u")
+    v = _float_values(table, "v")  # NaN where null (strips)
+    sigma_v = _float_values(table, "sigma_v")
+    first = np.empty(len(AREA_CHECKS), np.int64)
+    first_bad_area_rows(layer, u, sigma_u, v, sigma_v, area.u_min, area.u_max, area.v_min, area.v_max,
+                        area.hole_radius, area.hole_half_u, area.hole_half_v, AREA_TOLERANCE_SIGMAS, AREA_MARGIN_MM,
+                        first)
+    found = [(int(row), k) for k, row in enumerate(first) if row >= 0]
+    if not found:
+        return
+    row, k = min(found)  # the first bad row of all; of one row, the first check
+    lay = int(layer[row])
     beyond = f"by more than {AREA_TOLERANCE_SIGMAS:g} σ + {AREA_MARGIN_MM:g} mm"
+    extent = {"u": area.u_max[lay] - area.u_min[lay], "v": area.v_max[lay] - area.v_min[lay]}
+    bounds = {"u": (area.u_min[lay], area.u_max[lay]), "v": (area.v_min[lay], area.v_max[lay])}
+    values = {"u": u, "v": v, "sigma_u": sigma_u, "sigma_v": sigma_v}
+    check = AREA_CHECKS[k]
+    if check.startswith("sigma"):
+        column = check
+        problem = (f"is {float(values[check][row])!r} mm, larger than layer {lay}'s extent "
+                   f"({float(extent[check[-1]])!r} mm): not a measurement error")
+    elif check == "hole":
+        column = "u"
+        problem = f"is {float(u[row])!r} mm with v = {float(v[row])!r} mm: inside layer {lay}'s beam hole {beyond}"
+    else:
+        column = check
+        lo, hi = bounds[check]
+        problem = (f"is {float(values[check][row])!r} mm, outside layer {lay}'s active area "
+                   f"[{float(lo)!r}, {float(hi)!r}] mm {beyond}")
+    raise _row_error(source, table, row, column, key, problem)
 
-    def too_large(sigma, extent):
-        return lambda r: (f"is {float(sigma[r])!r} mm, larger than layer {layer[r]}'s extent "
-                          f"({float(extent[r])!r} mm): not a measurement error")
 
-    def outside(values, lo, hi):
-        return lambda r: (f"is {float(values[r])!r} mm, outside layer {layer[r]}'s active area "
-                          f"[{float(lo[layer[r]])!r}, {float(hi[layer[r]])!r}] mm {beyond}")
-
-    with np.errstate(invalid="ignore"):
-        r_hole = area.hole_radius[layer]
-        in_hole = (pixel & (r_hole > 0) & (np.hypot(u, v) < r_hole - np.maximum(tol_u, tol_v))) | (
-            pixel & (np.abs(u) < area.hole_half_u[layer] - tol_u) & (np.abs(v) < area.hole_half_v[layer] - tol_v))
-        checks = (  # (column, bad rows, problem of a row); the first bad row of all is reported
-            ("sigma_u", sigma_u > extent_u, too_large(sigma_u, extent_u)),
-            ("sigma_v", sigma_v > extent_v, too_large(sigma_v, extent_v)),
-            ("u", (u < area.u_min[layer] - tol_u) | (u > area.u_max[layer] + tol_u),
-             outside(u, area.u_min, area.u_max)),
-            ("v", pixel & ((v < area.v_min[layer] - tol_v) | (v > area.v_max[layer] + tol_v)),
-             outside(v, area.v_min, area.v_max)),
-            ("u", in_hole, lambda r: (f"is {float(u[r])!r} mm with v = {float(v[r])!r} mm: inside layer "
-                                      f"{layer[r]}'s beam hole {beyond}")),
-        )
-    found = [(row, k) for k, (_, bad, _) in enumerate(checks) if (row := _first_true(valid & bad)) is not None]
-    if found:
-        row, k = min(found)
-        name, _, problem = checks[k]
-        raise _row_error(source, table, row, name, key, problem(row))
+def _float_values(table: pa.Table, name: str) -> np.ndarray:
+    """A float64 column as a contiguous numpy array (NaN where null)."""
+    return np.ascontiguousarray(table.column(name).to_numpy(zero_copy_only=False), dtype=np.float64)
 
 
 def pair_keys(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +34,7 @@ from pkf.io.reader import (
 )
 from pkf.io.schemas import spec_for
 
-__all__ = ["OffsetSource", "TableScan", "scan_table", "read_rows", "file_sha256", "BATCH_ROWS"]
+__all__ = ["OffsetSource", "TableScan", "scan_table", "read_rows", "close_readers", "file_sha256", "BATCH_ROWS"]
 
 #: Rows per record batch of a scan (about 15 MB of hits): bounds the scan's memory.
 BATCH_ROWS = 1 << 18
@@ -192,29 +193,125 @@ def find_and_scan(dataset: Path, name: str, schema: pa.Schema, required: bool,
     return scan_table(location, schema, name, check, content_digest)
 
 
-def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None = None) -> pa.Table:
-    """Table rows [lo, hi) of a scanned table, reading only the row groups that hold them.
+#: Rows per record batch when :func:`read_rows` decodes a file: the rows decoded beyond the
+#: range asked for are at most this many (kept for the next call, see :class:`_ForwardReader`).
+READ_BATCH_ROWS = 1 << 16
 
-    Returns the rows with the table's schema (or only ``columns``, in that order).
+#: Open files per thread that :func:`read_rows` keeps positioned (hits, particles, mc_hits, and
+#: their key columns for the consistency checks).
+OPEN_READERS = 8
+
+
+class _ForwardReader:
+    """One Parquet file (and column set) decoded forward, batch by batch, from a row group on.
+
+    The rows of a partition are a small part of a row group (a simulated ν = 7.6 dataset has
+    ~1.6 million hits per row group, 200 events; a partition is 50 of them): reading the
+    row groups that hold each partition decoded every row group four times, and the
+    consistency checks as often again (1,000 events: 7.4 s of CPU for 18 s of decoded rows
+    in `pkf reconstruct`). A reader keeps its position and the decoded rest of its last batch, so
+    the partitions of a file read in order decode each row once; a range behind the position
+    or in a later row group is reached by starting again at its row group.
     """
-    import pyarrow.parquet as pq
 
-    names = list(columns) if columns is not None else scan.schema.names
+    def __init__(self, file: Path, names: tuple[str, ...], stamp: tuple):
+        import pyarrow.parquet as pq
+
+        self.file, self.names, self.stamp = file, names, stamp
+        self.pf = pq.ParquetFile(file, pre_buffer=False, buffer_size=1 << 20)
+        sizes = [self.pf.metadata.row_group(i).num_rows for i in range(self.pf.num_row_groups)]
+        self.edges = np.cumsum([0] + sizes)
+        self.batches = None
+        self.pos = 0  # file row of the first row of ``pending``
+        self.pending: pa.RecordBatch | None = None
+
+    def _group(self, row: int) -> int:
+        return int(np.searchsorted(self.edges, row, side="right")) - 1
+
+    def _start_at_group(self, group: int) -> None:
+        self.batches = self.pf.iter_batches(batch_size=READ_BATCH_ROWS, row_groups=range(group, len(self.edges) - 1),
+                                            columns=list(self.names), use_threads=False)
+        self.pos, self.pending = int(self.edges[group]), None
+
+    def read(self, a: int, b: int) -> list[pa.RecordBatch]:
+        """File rows [a, b), as slices of decoded batches."""
+        if self.batches is None or a < self.pos or self._group(a) > self._group(self.pos):
+            self._start_at_group(self._group(a))
+        parts = []
+        while self.pos < b:
+            batch = self.pending if self.pending is not None else next(self.batches)
+            n = batch.num_rows
+            lo, hi = max(a - self.pos, 0), min(b - self.pos, n)
+            if hi > lo:
+                parts.append(batch.slice(lo, hi - lo))
+            if hi < n:  # the rest is kept for the next call
+                self.pending, self.pos = batch.slice(hi), self.pos + hi
+            else:
+                self.pending, self.pos = None, self.pos + n
+        return parts
+
+    def close(self) -> None:
+        self.pf.close()
+
+
+_READERS = threading.local()  # per thread (Dask runs tasks in threads): {(file, names): _ForwardReader}
+
+
+def _forget_readers_after_fork() -> None:
+    """In a forked worker: start without the parent's readers (their open files and positions
+    are the parent's; a worker reads its partitions with its own)."""
+    global _READERS
+    _READERS = threading.local()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_readers_after_fork)
+
+
+def _reader(file: Path, names: tuple[str, ...]) -> _ForwardReader:
+    """This thread's reader of ``file`` and ``names`` (a new one if the file changed on disk)."""
+    readers = getattr(_READERS, "open", None)
+    if readers is None:
+        readers = _READERS.open = {}
+    st = os.stat(file)
+    stamp = (st.st_ino, st.st_size, st.st_mtime_ns)
+    key = (str(file), names)
+    reader = readers.pop(key, None)
+    if reader is not None and reader.stamp != stamp:
+        reader.close()
+        reader = None
+    if reader is None:
+        reader = _ForwardReader(file, names, stamp)
+    readers[key] = reader  # most recently used last
+    while len(readers) > OPEN_READERS:
+        readers.pop(next(iter(readers))).close()
+    return reader
+
+
+def close_readers() -> None:
+    """Close the files :func:`read_rows` keeps open in this thread."""
+    for reader in getattr(_READERS, "open", {}).values():
+        reader.close()
+    _READERS.open = {}
+
+
+def read_rows(scan: TableScan, lo: int, hi: int, columns: Sequence[str] | None = None) -> pa.Table:
+    """Table rows [lo, hi) of a scanned table, decoding only from the row group that holds ``lo``
+    (or from where this thread's previous read of the file ended: :class:`_ForwardReader`).
+
+    Returns the rows with the table's schema (or only ``columns``, in that order), in the chunks
+    they were decoded in (copying them into one cost 0.45 s of CPU per 1,000 events at ν = 7.6).
+    """
+    names = tuple(columns) if columns is not None else tuple(scan.schema.names)
     schema = pa.schema([scan.schema.field(n) for n in names])
     parts = []
     for k, file in enumerate(scan.files):
         a, b = max(lo, scan.file_rows[k]), min(hi, scan.file_rows[k + 1])
         if a >= b:
             continue
-        a, b = a - scan.file_rows[k], b - scan.file_rows[k]
-        with pq.ParquetFile(file) as pf:
-            sizes = [pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)]
-            edges = np.cumsum([0] + sizes)
-            first = int(np.searchsorted(edges, a, side="right")) - 1
-            last = int(np.searchsorted(edges, b, side="left"))
-            raw = pf.read_row_groups(list(range(first, last)), columns=names, use_threads=True)
-        raw = raw.slice(a - int(edges[first]), b - a)
+        batches = _reader(file, names).read(a - scan.file_rows[k], b - scan.file_rows[k])
+        raw = pa.Table.from_batches(batches)  # chunks of the decoded batches: not copied into one
         parts.append(convert_to_schema(raw, schema, str(file), (), spec_for(scan.schema)))
     if not parts:
         return schema.empty_table()
-    return pa.concat_tables(parts).combine_chunks() if len(parts) > 1 else parts[0]
+    return pa.concat_tables(parts) if len(parts) > 1 else parts[0]

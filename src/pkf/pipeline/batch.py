@@ -32,14 +32,14 @@ from pkf.io.schemas import (
     TRACK_STATES,
     pack_covariance,
     particle_key,
-    table_from_columns,
 )
 from pkf.params.parameter_set import load_parameters
 from pkf.params.transport import ParametrizedExtrapolator
 from pkf.params.ut_to_scifi import covered_p_min
 from pkf.pipeline import triplet_pattern
 from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
-from pkf.pipeline.matching import match_tracks, reconstructible_particles, velo_reconstructible_particles
+from pkf.pipeline.matching import match_tracks, reconstructible_sets
+from pkf.pipeline.rows import Coded, RowBlocks
 from pkf.pipeline.triplet_pattern import crowded_events, triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
 
@@ -48,7 +48,7 @@ RUN_SCHEMAS = {"candidates": CANDIDATES, "chi2": CHI2, "states": STATES, "pulls"
                "track_states": TRACK_STATES}
 
 
-class _Clock:
+class StageClock:
     """Adds wall and CPU seconds of a ``with`` block to ``timing[stage]``."""
 
     def __init__(self, timing: dict, stage: str):
@@ -106,6 +106,11 @@ def context_for(geometry: Geometry, config) -> ReconstructionContext:
             track_states=config.track_states,
         )
     return _CONTEXTS[key]
+
+
+def _n_events(event_id: np.ndarray) -> int:
+    """Events among hit rows grouped by event (what ``np.unique(event_id).size`` sorts for)."""
+    return int(event_id.size and 1 + np.count_nonzero(event_id[1:] != event_id[:-1]))
 
 
 def _true_momentum(production: dict, keys: np.ndarray) -> np.ndarray | None:
@@ -179,8 +184,32 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
     """Reconstruct the events of ``data`` (hits, and MC truth if present, of whole events).
 
     Returns:
-        (tables, summary): the batch's rows per run table (sorted by event, track,
-        fitter, location) and its summary: ``events``, ``hits``, ``candidates``,
+        (tables, summary): the batch's rows per run table (:func:`run_tables`) and its
+        summary (:func:`batch_rows`).
+    """
+    rows, summary = batch_rows(ctx, data)
+    return run_tables(rows), summary
+
+
+#: Sort keys of the run tables (`run_tables`): event, track, then fitter and location or node.
+SORT_KEYS = ("event_id", "track_id", "fitter", "location", "node")
+
+
+def run_tables(rows: RowBlocks) -> dict[str, pa.Table]:
+    """The run tables of ``rows`` (those :func:`batch_rows` declared, in :data:`RUN_TABLES` order):
+    candidates in the pattern's hit order, the others ordered by :data:`SORT_KEYS` (stable: the
+    stages of a node keep their order). Rows of several batches in event order give the tables
+    of one batch of all their events."""
+    return {name: rows.table(name, RUN_SCHEMAS[name], () if name == "candidates" else SORT_KEYS)
+            for name in RUN_TABLES if name in rows.blocks}
+
+
+def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, dict]:
+    """Reconstruct the events of ``data`` (hits, and MC truth if present, of whole events).
+
+    Returns:
+        (rows, summary): the batch's rows per run table (numpy blocks, :func:`run_tables` builds
+        the tables) and its summary: ``events``, ``hits``, ``candidates``,
         ``tracks`` per fitter, ``timing`` per stage (wall_s, cpu_s), ``fit`` per
         fitter (wall_s, tracks, nodes), with MC ``pattern``/``velo`` counts, and
         ``events_over_hit_limit`` (events, limit, first event ids) if the triplet pattern
@@ -196,11 +225,11 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         production = production_truth(data)
     fitter_names = [f.name for f, _ in ctx.fitters_ext]
     timing: dict = {}
-    summary = {"events": int(np.unique(ev).size), "hits": int(chunk.num_rows), "candidates": 0,
+    summary = {"events": _n_events(ev), "hits": int(chunk.num_rows), "candidates": 0,
                "tracks": {n: 0 for n in fitter_names}, "fit": {n: {"wall_s": 0.0, "tracks": 0, "nodes": 0}
                                                               for n in fitter_names}}
     layer = column(chunk, "layer", np.int64)
-    with _Clock(timing, "pattern"):
+    with StageClock(timing, "pattern"):
         if ctx.pattern == "truth":
             candidates = truth_candidates(ev, layer, hit_particle)
         else:
@@ -218,9 +247,12 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
     n_tracks, track_of_hit, cand_row = candidates.n_tracks, candidates.track_of_hit, candidates.hit_row
     track_event, track_id = candidates.event_id, candidates.track_id
     hit_id = column(chunk, "hit_id", np.int64)
-    tables = {"candidates": [table_from_columns(CANDIDATES, {
-        "event_id": candidates.hit_event, "track_id": candidates.hit_track, "hit_id": hit_id[cand_row]})],
-        "chi2": [], "states": [], "pulls": [], "track_states": []}
+    rows = RowBlocks()
+    for name in RUN_TABLES:  # the tables of this run, even without rows
+        if (name != "pulls" or has_mc) and (name != "track_states" or ctx.track_states):
+            rows.blocks[name] = []
+    rows.add("candidates", {"event_id": candidates.hit_event, "track_id": candidates.hit_track,
+                            "hit_id": hit_id[cand_row]})
     summary["candidates"] = n_tracks
     if has_mc:
         hit_key = particle_key(ev, hit_particle)
@@ -229,13 +261,14 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
                                  == SUBDETECTORS.index("scifi"), minlength=n_tracks)
         is_long = scifi_hits > 0
-        long_rec = reconstructible_particles(geometry, hit_key, layer)
+        reconstructible = reconstructible_sets(geometry, hit_key, layer)
+        long_rec = reconstructible["long"]
         summary["pattern"] = pattern_counts(mc_id[is_long], long_rec, _true_momentum(production, long_rec))
         # VELO tracks are matched on their VELO hits alone: a VELO track with a wrong
         # forward extension is a correct VELO track (and a ghost long track)
         velo_hit = geometry.layer_subdetector[layer[cand_row]] == SUBDETECTORS.index("velo")
         velo_id, _, _ = match_tracks(track_of_hit[velo_hit], hit_key[cand_row][velo_hit], n_tracks)
-        velo_rec = velo_reconstructible_particles(geometry, hit_key, layer)
+        velo_rec = reconstructible["velo"]
         summary["velo"] = pattern_counts(velo_id[np.bincount(track_of_hit[velo_hit], minlength=n_tracks) > 0],
                                          velo_rec, _true_momentum(production, velo_rec))
     else:
@@ -246,7 +279,7 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         _warm_up(ctx.fitters_ext, batch, seeds, seed_covs, ctx.fit_options, ctx.beamline_ext)
         ctx.warmed = True
     for fitter, ext in ctx.fitters_ext:
-        with _Clock(timing, f"fit.{fitter.name}") as clock:
+        with StageClock(timing, f"fit.{fitter.name}") as clock:
             result = fitter.fit(ext, batch, ctx.fit_options[fitter.name], seeds, seed_covs, ctx.beamline_ext,
                                 track_states=ctx.track_states)
         stats = summary["fit"][fitter.name]
@@ -255,37 +288,19 @@ def reconstruct_batch(ctx: ReconstructionContext, data: Dataset) -> tuple[dict, 
         stats["nodes"] += int(batch.z.size)
         summary["tracks"][fitter.name] += int(np.sum(result.status == STATUS_OK))
         summary.setdefault("below_p_min", {})[fitter.name] = _below_p_min(ext, batch, result)
-        tables["chi2"].append(_chi2_table(fitter, geometry, batch, result, track_event, track_id,
-                                          mc_particle, fraction, ghost))
-        tables["states"].append(_states_table(fitter, result, track_event, track_id))
+        rows.add("chi2", _chi2_rows(fitter, geometry, batch, result, track_event, track_id,
+                                    mc_particle, fraction, ghost))
+        _add_states_rows(rows, fitter, result, track_event, track_id)
         if ctx.track_states:
-            tables["track_states"].append(_track_states_table(fitter, batch, result, track_event, track_id,
-                                                              hit_id))
+            rows.add("track_states", _track_states_rows(fitter, batch, result, track_event, track_id, hit_id))
         if has_mc:
             # under the electron hypothesis the parametrized q/p is no longer the production one
             # (it loses the expected radiation, pkf.fit.hypothesis): its truth is the local q/p
             at_production = fitter.qop_at_production and ctx.fit_options[fitter.name].kalman.hypothesis == "pion"
-            tables["pulls"].append(_pulls_table(fitter, batch, result, track_event, track_id, mc_particle,
-                                                hit_truth, production, at_production))
+            _add_pulls_rows(rows, fitter, batch, result, track_event, track_id, mc_particle, hit_truth,
+                            production, at_production)
     summary["timing"] = timing
-    out = {}
-    for name in RUN_TABLES:
-        if (name == "pulls" and not has_mc) or (name == "track_states" and not ctx.track_states):
-            continue
-        parts = tables[name]
-        if not parts:
-            out[name] = RUN_SCHEMAS[name].empty_table()
-        else:  # candidates keep the pattern's hit order; the others are sorted
-            out[name] = pa.concat_tables(parts) if name == "candidates" else _sorted(pa.concat_tables(parts))
-    return out, summary
-
-
-def _sorted(table: pa.Table) -> pa.Table:
-    """Rows ordered by event, track, then fitter and location or node (run tables are sorted
-    by event); the sort is stable, so the stages of a node keep their order."""
-    keys = [(k, "ascending") for k in ("event_id", "track_id", "fitter", "location", "node")
-            if k in table.column_names]
-    return table.sort_by(keys)
+    return rows, summary
 
 
 def _subdetector_counts(geometry: Geometry, batch: TrackBatch, active: np.ndarray):
@@ -313,34 +328,32 @@ def _below_p_min(ext, batch: TrackBatch, result) -> int:
     return int(np.sum(fitted & (np.abs(qop) * p_covered > 1.0)))
 
 
-def _chi2_table(fitter, geometry, batch, result, track_event, track_id, mc_particle, fraction, ghost):
+def _chi2_rows(fitter, geometry, batch, result, track_event, track_id, mc_particle, fraction, ghost) -> dict:
     counts = _subdetector_counts(geometry, batch, result.node_active)
     ok = result.status == STATUS_OK
     ndf = result.ndf
-    return table_from_columns(CHI2, {
+    return {
         "event_id": track_event, "track_id": track_id, "fitter": fitter.name,
-        "track_type": np.array(TRACK_TYPE_NAMES, dtype=object)[batch.track_type],
+        "track_type": Coded(TRACK_TYPE_NAMES, batch.track_type),
         "n_velo": counts["velo"], "n_ut": counts["ut"], "n_scifi": counts["scifi"],
         "n_outliers": result.n_outliers, "chi2": result.chi2, "ndf": ndf,
         "chi2_ndf": np.where(ok & (ndf > 0), result.chi2 / np.maximum(ndf, 1), np.nan),
-        "status": np.array(STATUS_NAMES, dtype=object)[result.status],
+        "status": Coded(STATUS_NAMES, result.status),
         "mc_particle_id": mc_particle, "match_fraction": fraction, "is_ghost": ghost,
-    })
+    }
 
 
-def _states_table(fitter, result, track_event, track_id):
+def _add_states_rows(rows: RowBlocks, fitter, result, track_event, track_id) -> None:
     ok = result.status == STATUS_OK
-    parts = []
     for location, (z, state, cov) in result.locations.items():
         cols = {"event_id": track_event[ok], "track_id": track_id[ok], "fitter": fitter.name,
                 "location": location, "z": z[ok]}
         cols.update({name: state[ok, i] for i, name in enumerate(STATE_NAMES)})
         cols.update(pack_covariance(cov[ok]))
-        parts.append(table_from_columns(STATES, cols))
-    return pa.concat_tables(parts)
+        rows.add("states", cols)
 
 
-def _track_states_table(fitter, batch, result, track_event, track_id, hit_id):
+def _track_states_rows(fitter, batch, result, track_event, track_id, hit_id):
     """Rows of ``track_states`` of one fitter (docs/formats.md#track_states): every node of
     the tracks with status ok, one row per stage the fitter provides, node by node in z
     order and the stages in the order of the fit."""
@@ -361,17 +374,19 @@ def _track_states_table(fitter, batch, result, track_event, track_id, hit_id):
     cols = {"event_id": per_row(track_event[node_tracks]), "track_id": per_row(track_id[node_tracks]),
             "fitter": fitter.name, "node": per_row(nodes - batch.offsets[node_tracks]),
             "layer": per_row(batch.layer[nodes]), "hit_id": per_row(hit_id[batch.hit_row[nodes]]),
-            "z": per_row(batch.z[nodes]), "stage": np.tile(np.array(stages, dtype=object), nodes.size)}
+            "z": per_row(batch.z[nodes]),
+            "stage": Coded(tuple(stages), np.tile(np.arange(len(stages)), nodes.size))}
     cols.update({name: state[:, i] for i, name in enumerate(STATE_NAMES)})
     cols.update(pack_covariance(stage_major([states.cov[stage] for stage in stages])))
     res = stage_major([r.res for r in residuals])
     var = stage_major([r.var for r in residuals])
     cols.update({"res_u": res[:, 0], "var_res_u": var[:, 0], "res_v": res[:, 1], "var_res_v": var[:, 1],
                  "chi2": stage_major([r.chi2 for r in residuals]), "is_outlier": per_row(states.is_outlier[nodes])})
-    return table_from_columns(TRACK_STATES, cols)
+    return cols
 
 
-def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_truth, production, at_production):
+def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_id, mc_particle, hit_truth,
+                    production, at_production) -> None:
     """Residuals and pulls at each location for tracks matched to a particle.
 
     Truth at the first/last hit: the mc_hit state of that node's hit (q/p replaced by the
@@ -384,7 +399,6 @@ def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_
     if production:
         pos = np.minimum(pos, production["key"].size - 1)
         has_particle = production["key"][pos] == pkey
-    parts = []
     node_index = {"first_hit": batch.offsets[:-1], "last_hit": batch.offsets[1:] - 1}
     for location, (z, state, cov) in result.locations.items():
         if location == "beamline":
@@ -413,7 +427,6 @@ def _pulls_table(fitter, batch, result, track_event, track_id, mc_particle, hit_
         for i, name in enumerate(STATE_NAMES):
             cols[f"res_{name}"] = res[:, i]
             cols[f"pull_{name}"] = res[:, i] / sigma[:, i]
-        parts.append(table_from_columns(PULLS, cols))
-    return pa.concat_tables(parts)
+        rows.add("pulls", cols)
 
 

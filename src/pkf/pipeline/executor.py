@@ -103,11 +103,15 @@ def event_groups(event_id, max_hits: int) -> list[tuple[int, int]]:
     return groups
 
 
-def _slice_events(table, first_event: int, next_event: int | None):
-    """The rows of events [first_event, next_event) of a table sorted by event (None: to the end)."""
+def _slice_events(table, first_event: int, next_event: int | None, e=None):
+    """The rows of events [first_event, next_event) of a table sorted by event (None: to the end).
+
+    e: the table's event_id column as numpy, if at hand (a table of several chunks is copied
+    into one array to make it).
+    """
     import numpy as np
 
-    e = table.column("event_id").to_numpy()
+    e = table.column("event_id").to_numpy() if e is None else e
     lo = int(np.searchsorted(e, first_event, side="left"))
     hi = e.size if next_event is None else int(np.searchsorted(e, next_event, side="left"))
     return table.slice(lo, hi - lo)
@@ -139,50 +143,59 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
 
     The partition is reconstructed in groups of whole events of about :data:`PROGRESS_HITS`
     hits; ``progress(n_events)`` is called after each group. The rows are those of one
-    batch of the whole partition (concatenated in event order; each table sorted as one).
+    batch of the whole partition: the groups' rows in event order, each table built and
+    sorted once (:func:`~pkf.pipeline.batch.run_tables`).
+
+    The summary's ``timing`` also has the CPU and wall seconds of reading the rows (``read``),
+    of reconstructing the groups (``batches``: pattern and fit kernels, MC matching, rows) and
+    of building the tables (``tables``).
 
     max_events: only the first events (used to warm up numba's cache before starting workers).
     """
     import numpy as np
-    import pyarrow as pa
 
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
-    from pkf.pipeline.batch import RUN_SCHEMAS, context_for, reconstruct_batch
+    from pkf.pipeline.batch import StageClock, batch_rows, context_for, reconstruct_batch, run_tables
+    from pkf.pipeline.rows import RowBlocks
     from pkf.pipeline.config import ReconstructionConfig
 
     config = ReconstructionConfig.from_dict(task.config)
     ctx = context_for(_geometry(task.dataset, config.geometry), config)
-    parts = {}
-    for name, (scan, lo, hi) in task.tables.items():
-        parts[name] = read_rows(scan, lo, hi)
+    timing: dict = {}
+    with StageClock(timing, "read"):
+        parts = {name: read_rows(scan, lo, hi) for name, (scan, lo, hi) in task.tables.items()}
     if max_events is not None:
         ev = parts["hits"].column("event_id").to_numpy()
         last = np.unique(ev)[:max_events][-1]
         for name, table in parts.items():
             e = table.column("event_id").to_numpy()
             parts[name] = table.slice(0, int(np.searchsorted(e, last, side="right")))
-    hit_events = parts["hits"].column("event_id").to_numpy()
+    events = {name: table.column("event_id").to_numpy() for name, table in parts.items()}  # once per partition
+    hit_events = events["hits"]
     groups = event_groups(hit_events, PROGRESS_HITS)
     if not groups:  # a partition without hits
         return reconstruct_batch(ctx, Dataset(Path(task.dataset), {}, parts["hits"], parts.get("particles"),
                                               parts.get("mc_hits")))
-    tables: dict[str, list] = {}
+    rows = RowBlocks()
     summary = None
     for i, (lo, hi) in enumerate(groups):
         first = int(hit_events[lo])
         following = int(hit_events[groups[i + 1][0]]) if i + 1 < len(groups) else None
-        part = {name: (table.slice(lo, hi - lo) if name == "hits" else _slice_events(table, first, following))
+        part = {name: (table.slice(lo, hi - lo) if name == "hits" else
+                       _slice_events(table, first, following, events[name]))
                 for name, table in parts.items()}
         data = Dataset(Path(task.dataset), {}, part["hits"], part.get("particles"), part.get("mc_hits"))
-        group_tables, group_summary = reconstruct_batch(ctx, data)
-        for name, table in group_tables.items():
-            tables.setdefault(name, []).append(table.select(RUN_SCHEMAS[name].names).cast(RUN_SCHEMAS[name]))
+        with StageClock(timing, "batches"):
+            group_rows, group_summary = batch_rows(ctx, data)
+        rows.extend(group_rows)
         summary = add_summaries(summary, group_summary)
         if progress is not None:
             progress(group_summary["events"])
         CtrlC.check()
-    return {name: pa.concat_tables(t) for name, t in tables.items()}, summary
+    with StageClock(timing, "tables"):
+        tables = run_tables(rows)
+    return tables, add_summaries(summary, {"timing": timing})
 
 
 def run_partition(task: PartitionTask, progress: Callable[[int], None] | None = None) -> dict:
@@ -192,18 +205,21 @@ def run_partition(task: PartitionTask, progress: Callable[[int], None] | None = 
     """
     from pkf.io.atomic import atomic_write_json, atomic_write_table
     from pkf.io.stream import file_sha256
-    from pkf.pipeline.batch import RUN_SCHEMAS
+    from pkf.pipeline.batch import RUN_SCHEMAS, StageClock
     from pkf.pipeline.resume import JOURNAL
 
     tables, summary = reconstruct_task(task, progress=progress)
     root = Path(task.staging)
     files = {}
-    for table_name, table in tables.items():
-        rel = Path(table_name) / f"{task.name}.parquet"
-        (root / table_name).mkdir(exist_ok=True)
-        atomic_write_table(table, root / rel, schema=RUN_SCHEMAS[table_name])
-        files[table_name] = {"path": rel.as_posix(), "sha256": file_sha256(root / rel), "rows": table.num_rows}
-    entry = {"name": task.name, "key": task.key, "files": files, "summary": summary}
+    timing: dict = {}
+    with StageClock(timing, "write"):  # the Parquet files and their SHA-256
+        for table_name, table in tables.items():
+            rel = Path(table_name) / f"{task.name}.parquet"
+            (root / table_name).mkdir(exist_ok=True)
+            atomic_write_table(table, root / rel, schema=RUN_SCHEMAS[table_name])
+            files[table_name] = {"path": rel.as_posix(), "sha256": file_sha256(root / rel), "rows": table.num_rows}
+    entry = {"name": task.name, "key": task.key, "files": files,
+             "summary": add_summaries(summary, {"timing": timing})}
     atomic_write_json(entry, root / JOURNAL / f"{task.name}.json")
     return entry
 

@@ -169,12 +169,18 @@ def align_mc(dataset, event_id: np.ndarray):
     """Per hit row: its MC particle (0 for noise or no MC record) and the true state
     (x, y, tx, ty, q/p) of its mc_hit (NaN for noise), shape (n_hits, 5)."""
     mc = dataset.mc_hits
-    mc_key, hit_key = pair_keys(column(mc, "event_id", np.int64), column(mc, "hit_id", np.int64),
-                                event_id, column(dataset.hits, "hit_id", np.int64))
-    order = np.argsort(mc_key, kind="stable")
-    pos = np.minimum(np.searchsorted(mc_key[order], hit_key), max(mc_key.size - 1, 0))
-    idx = order[pos]
-    found = mc_key[idx] == hit_key
+    mc_event, mc_hit = column(mc, "event_id", np.int64), column(mc, "hit_id", np.int64)
+    hit_id = column(dataset.hits, "hit_id", np.int64)
+    if np.array_equal(mc_event, event_id) and np.array_equal(mc_hit, hit_id):
+        # mc_hits row by row as the hits (pkf simulate writes them so): no search; 1,000 minbias
+        # events at ν = 7.6, 0.35 s of CPU
+        idx, found = np.arange(hit_id.size), np.ones(hit_id.size, dtype=bool)
+    else:
+        mc_key, hit_key = pair_keys(mc_event, mc_hit, event_id, hit_id)
+        order = np.argsort(mc_key, kind="stable")
+        pos = np.minimum(np.searchsorted(mc_key[order], hit_key), max(mc_key.size - 1, 0))
+        idx = order[pos]
+        found = mc_key[idx] == hit_key
     particle = column(mc, "particle_id", np.int64)[idx]
     truth = np.column_stack([column(mc, c)[idx] for c in STATE_NAMES])
     truth[~found] = np.nan

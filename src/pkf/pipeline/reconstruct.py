@@ -23,9 +23,9 @@ import pkf
 from pkf.errors import InputError
 from pkf.geometry.detector import BUILTIN_GEOMETRIES
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
-from pkf.io.stream import file_sha256
+from pkf.io.stream import close_readers, file_sha256
 from pkf.pipeline import triplet_pattern
-from pkf.pipeline.batch import metrics_from_counts
+from pkf.pipeline.batch import StageClock, metrics_from_counts
 from pkf.pipeline.config import ReconstructionConfig
 from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
 from pkf.pipeline.plan import DatasetPlan, plan_dataset, with_keys
@@ -89,8 +89,10 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     maybe_complete = not overwrite and final.is_dir() and (final / "run.json").is_file()
     if not maybe_complete:
         check_output_dir(out, overwrite)
-    plan = plan_dataset(dataset_path, events_per_batch, config.geometry)
-    _check_config_against(plan, config)
+    validation: dict = {}
+    with StageClock(validation, "validate"):  # the whole dataset, before any work (docs/cli.md)
+        plan = plan_dataset(dataset_path, events_per_batch, config.geometry)
+        _check_config_against(plan, config)
     if echo:
         for line in plan.warnings():
             echo(f"pkf: warning: {line}")
@@ -129,9 +131,13 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
                 events_done.finish(entry["name"])
 
             t0 = time.perf_counter()
-            execute(todo, use_workers, scheduler, on_done, events_done.advance)
+            try:
+                execute(todo, use_workers, scheduler, on_done, events_done.advance)
+            finally:
+                close_readers()  # the input files this process read partitions of
             work_wall = time.perf_counter() - t0
         run = _run_json(plan, run_config, done, dataset_path)
+        run["timing"] = validation | run["timing"]
         run["execution"] = {"workers": None if scheduler else use_workers, "scheduler": scheduler,
                             "partitions": len(keys), "resumed_partitions": len(keys) - len(todo),
                             "events_processed": sum(events_of[t.name] for t in todo),

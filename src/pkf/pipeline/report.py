@@ -20,11 +20,7 @@ from pkf.physics.constants import PDG_BS, PDG_KAON, PDG_PHI
 from pkf.pipeline.inputs import STATE_NAMES, align_mc
 from pkf.pipeline.plan import plan_dataset
 from pkf.pipeline.progress import progress_bar
-from pkf.pipeline.matching import (
-    reconstructible_particles,
-    upstream_reconstructible_particles,
-    velo_reconstructible_particles,
-)
+from pkf.pipeline.matching import reconstructible_sets
 from pkf.report.html import render_html
 from pkf.report.metrics import ETA_EDGES, P_EDGES_MEV, DatasetTruth, bin_index, compute_report, lookup_sorted
 from pkf.report.runs import RunInput, column, load_runs, parse_run_spec
@@ -154,9 +150,9 @@ def _truth_of_part(geometry, dataset: Dataset) -> dict:
     particle, _ = align_mc(dataset, event_id)
     key = particle_key(event_id, particle)
     layer = column(hits, "layer", np.int64)
-    reco = np.sort(reconstructible_particles(geometry, key, layer))
-    reco_of = {"upstream": np.sort(upstream_reconstructible_particles(geometry, key, layer)),
-               "velo": np.sort(velo_reconstructible_particles(geometry, key, layer))}
+    reconstructible = reconstructible_sets(geometry, key, layer)  # sorted keys
+    reco = reconstructible["long"]
+    reco_of = {"upstream": reconstructible["upstream"], "velo": reconstructible["velo"]}
 
     parts = dataset.particles
     p_event = column(parts, "event_id", np.int64)
