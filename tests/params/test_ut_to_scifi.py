@@ -462,7 +462,10 @@ def test_small_table_in_a_uniform_field_matches_rk4():
     assert np.all(status == 0)
     diff = out - truth
     assert np.sqrt(np.mean(diff[:, 0] ** 2)) < 0.003  # mm
-    assert np.max(np.abs(diff[:, 0])) < 0.020
-    assert np.max(np.abs(diff[:, 1])) < 0.010
-    assert np.max(np.abs(diff[:, 2])) < 1e-5
-    assert np.max(np.abs(diff[:, 3])) < 5e-6
+    # worst of 300 (x, y [mm], tx, ty): 0.022, 0.011, 1.1e-5, 5.3e-6 with the quadratic ideal
+    # direction, 0.016, 0.009, 8.8e-6, 4.4e-6 with the constant bend (RMS x 1.7 against 1.3 µm);
+    # in the field map the quadratic one is the better: 3–5 GeV 41 → 37 µm RMS
+    assert np.max(np.abs(diff[:, 0])) < 0.025
+    assert np.max(np.abs(diff[:, 1])) < 0.013
+    assert np.max(np.abs(diff[:, 2])) < 1.3e-5
+    assert np.max(np.abs(diff[:, 3])) < 6e-6

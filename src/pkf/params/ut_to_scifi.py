@@ -871,6 +871,17 @@ def interpolate_grid(values, s0x, dsx, s0y, dsy, sx, sy):
     return f, f_xi * fx, f_psi * fy
 
 
+def without_soft_range(meta: np.ndarray) -> np.ndarray:
+    """A copy of `meta` that reads the same table as one without soft range: eq. 21 on
+    |w| ≤ 1, continued from the edge beyond it (status STATUS_BELOW_P_MIN), as a table of
+    p_min only (the forward search's view, `pkf.seeding.forward.extend_velo_tracks`)."""
+    hard = np.array(meta, dtype=np.float64, copy=True)
+    if hard.size >= META_SIZE:
+        hard[META_W_MAX] = 1.0
+        hard[META_SOFT_DEGREES : META_SOFT_DEGREES + 8] = 0.0
+    return hard
+
+
 def covered_p_min(meta: np.ndarray) -> float:
     """[MeV] the lowest momentum the table of `meta` covers: p_min/w_max (p_low with a soft
     range, p_min without); 0 for an empty table."""

@@ -134,6 +134,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pkf.geometry.detector import Geometry
+from pkf.params.ut_to_scifi import without_soft_range
 from pkf.seeding.csr import CsrTracks
 from pkf.seeding.forward.kernel import extend_kernel, new_pass_work, new_work
 from pkf.seeding.forward.options import (
@@ -249,6 +250,11 @@ def extend_velo_tracks(
         options = ForwardOptions(**overrides)
     elif overrides:
         options = ForwardOptions(**(asdict(options) | overrides))
+    # The search reads the UT→SciFi table as one of p ≥ p_min (3 GeV) continued below it,
+    # as it was tuned: with the soft range 1.5–3 GeV its 2–5 GeV long efficiency at ν = 7.6
+    # fell from 95.2 to 93.6 % (benchmarks/pattern_recognition.py, 100 events). The fits
+    # use the whole table.
+    ext = ext._replace(uts_meta=without_soft_range(ext.uts_meta))
     prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext, options)
     n = prep.n_tracks
     out = _new_output(n, prep.lay.layer.size, prep.lay.n_ut)
