@@ -1,4 +1,4 @@
-"""numba options shared by the compiled kernels.
+"""numba options shared by the compiled kernels, and the generated kernel source blocks.
 
 `NO_REFCOUNT` compiles a function without numba's runtime reference counting (NRT). For
 functions that only read and write arrays they are given — no allocation, no array
@@ -23,6 +23,7 @@ the kernels compile as usual, slower and with the same results.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from llvmlite import ir
 from numba.core import cgutils, types
@@ -65,3 +66,21 @@ def stack_array(typingctx, shape):
         return array._getvalue()
 
     return array_type(shape), codegen
+
+
+# ----------------------------------------------------------------------------------
+# Generated kernel source: straight-line code that LLVM vectorises or unrolls, written into
+# a source file between a BEGIN and an END marker line by a generator module and checked by
+# a test to be exactly what it writes (`pkf.params.monomial_codegen`, `pkf.physics.lanes_codegen`)
+# ----------------------------------------------------------------------------------
+
+
+def generated_block_in(path: Path, begin: str, end: str) -> str:
+    """The block of `path` from the line `begin` through the line `end`, markers included."""
+    text = path.read_text()
+    return text[text.index(begin) : text.index(end) + len(end)] + "\n"
+
+
+def replace_generated_block(path: Path, begin: str, end: str, block: str) -> None:
+    """Replace the block of `path` between `begin` and `end` (markers included) by `block`."""
+    path.write_text(path.read_text().replace(generated_block_in(path, begin, end), block))

@@ -4,7 +4,10 @@ import base64
 import json
 import logging
 import math
+import sys
 import time
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +29,9 @@ from pkf.params.ut_to_scifi import (
     ut_to_scifi_extrapolate_many,
 )
 from pkf.physics.transport import C_LIGHT, rk4_propagate, rk4_propagate_many
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ut_to_scifi_helpers import finite_difference_jacobian, near_cell_boundary  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -206,26 +212,6 @@ def test_straight_line_at_zero_q_over_p(arrays):
     assert jac[0, 4] != 0.0  # the deflection's q/p derivative stays
 
 
-def _near_cell_boundary(states, meta, margin=1e-3):
-    u = (states[:, 0] / meta[0] - meta[3]) / meta[4]
-    v = (states[:, 1] / meta[0] - meta[6]) / meta[7]
-    frac = lambda a: np.abs(a - np.round(a))  # noqa: E731
-    return (np.abs(frac(u) - 0.5) < margin) | (frac(u) < margin) | (np.abs(frac(v) - 0.5) < margin) | (frac(v) < margin)
-
-
-def finite_difference_jacobian(meta, coef, state, steps):
-    jac = np.empty((5, 5))
-    out_p, out_m, scratch = np.empty(5), np.empty(5), np.empty((5, 5))
-    for j in range(5):
-        sp, sm = state.copy(), state.copy()
-        sp[j] += steps[j]
-        sm[j] -= steps[j]
-        ut_to_scifi_extrapolate(meta, coef, sp, out_p, scratch)
-        ut_to_scifi_extrapolate(meta, coef, sm, out_m, scratch)
-        jac[:, j] = (out_p - out_m) / (2.0 * steps[j])
-    return jac
-
-
 @pytest.mark.parametrize("region", ["inside", "edge-and-outside", "below-p-min"])
 def test_jacobian_matches_finite_differences(table, arrays, region):
     meta, coef = arrays
@@ -246,7 +232,7 @@ def test_jacobian_matches_finite_differences(table, arrays, region):
         s[:, 0] + table.bend_at(s[:, 0], s[:, 1])[0] * qop + rng.normal(0, 3e-3, n),
         s[:, 1] + table.bend_at(s[:, 0], s[:, 1])[1] * qop + rng.normal(0, 3e-3, n), qop,
     ])
-    states = states[~_near_cell_boundary(states, meta)]
+    states = states[~near_cell_boundary(states, meta)]
     # positions step 3e-4 mm: at 1e-4 mm the round-off of x_out (~1 m) in the central difference
     # is ~2e-5 of the small ∂x/∂y (−4.5e-5) on some CPUs (1.8e-5 measured; 2.7e-6 at 3e-4 mm)
     steps = np.array([3e-4, 3e-4, 1e-7, 1e-7, 1e-10])

@@ -6,6 +6,9 @@ where the trajectories leave the acceptance."""
 import json
 import logging
 import math
+import sys
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +29,9 @@ from pkf.params.ut_to_scifi import (
     ut_to_scifi_extrapolate_many,
 )
 from pkf.physics.transport import rk4_propagate_many
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ut_to_scifi_helpers import finite_difference_jacobian, near_cell_boundary  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -128,19 +134,6 @@ def test_accuracy_per_momentum_bin(field_map, arrays, scatter):
             assert rms[name] <= limits[b], (name, (lo, hi), rms[name], limits[b])
 
 
-def _fd_jacobian(meta, coef, state, steps):
-    jac = np.empty((5, 5))
-    out_p, out_m, scratch = np.empty(5), np.empty(5), np.empty((5, 5))
-    for j in range(5):
-        sp, sm = state.copy(), state.copy()
-        sp[j] += steps[j]
-        sm[j] -= steps[j]
-        ut_to_scifi_extrapolate(meta, coef, sp, out_p, scratch)
-        ut_to_scifi_extrapolate(meta, coef, sm, out_m, scratch)
-        jac[:, j] = (out_p - out_m) / (2.0 * steps[j])
-    return jac
-
-
 def _states(table, rng, n, p_lo, p_hi, spread=3e-3):
     s = rng.uniform(-0.2, 0.2, (n, 2))
     qop = rng.choice([-1.0, 1.0], n) / rng.uniform(p_lo, p_hi, n)
@@ -149,12 +142,8 @@ def _states(table, rng, n, p_lo, p_hi, spread=3e-3):
                             s[:, 1] + beta_y * qop + rng.normal(0, spread, n), qop])
 
 
-def _off_cell_boundary(states, meta, margin=1e-3):
-    u = (states[:, 0] / meta[0] - meta[3]) / meta[4]
-    v = (states[:, 1] / meta[0] - meta[6]) / meta[7]
-    frac = lambda a: np.abs(a - np.round(a))  # noqa: E731
-    near = (np.abs(frac(u) - 0.5) < margin) | (frac(u) < margin) | (np.abs(frac(v) - 0.5) < margin) | (frac(v) < margin)
-    return states[~near]
+def _off_cell_boundary(states, meta):
+    return states[~near_cell_boundary(states, meta)]
 
 
 @pytest.mark.parametrize("p_range", [(1500.0, 2990.0), (900.0, 1490.0)], ids=["soft-range", "below-p-low"])
@@ -169,7 +158,7 @@ def test_soft_range_jacobian_matches_finite_differences(shipped, arrays, p_range
         status = ut_to_scifi_extrapolate(meta, coef, state, out, jac)
         assert status == (0 if p_range[0] >= 1500.0 else STATUS_BELOW_P_MIN)
         assert np.all(np.isfinite(out)) and np.all(np.isfinite(jac))
-        fd = _fd_jacobian(meta, coef, state, steps)
+        fd = finite_difference_jacobian(meta, coef, state, steps)
         scale = np.abs(jac) + 1e-6 * np.abs(jac).max(axis=0)
         worst = max(worst, float(np.max(np.abs(fd - jac) / scale)))
     assert states.shape[0] > 100
