@@ -255,12 +255,13 @@ def no_ut_check(sample, geometry, ext):
 
 def test_foreign_ut_hits_are_rare(sample, geometry, no_ut_check):
     """Correct extensions that carry a UT hit of another particle: measured on this sample
-    4.5 % with the UT outlier check, 24.8 % without (close tracks swap hits in the u-only
-    UT); efficiency and ghost rate no worse."""
+    2.0 % with the UT outlier check (4.5 % with its ambiguity cut at 4 instead of 9), 24.9 %
+    without (close tracks swap hits in the u-only UT); efficiency within 0.3–0.5 points (> 5 GeV
+    97.96 vs 98.10 %, 2–5 GeV 95.41 vs 95.86 %), ghost rate 0.13 vs 0.29 %."""
     share, met = _foreign_ut_share(sample, geometry, sample["result"])
     off = no_ut_check
     share_off, met_off = _foreign_ut_share(sample, geometry, off)
-    assert share < 0.08 and share_off > 0.18, (share, share_off)
+    assert share < 0.035 and share_off > 0.18, (share, share_off)
     assert met["efficiency_p_gt_5GeV"] >= met_off["efficiency_p_gt_5GeV"] - 0.003
     assert met["efficiency_p_2_5GeV"] >= met_off["efficiency_p_2_5GeV"] - 0.005
     assert met["ghost_rate"] <= met_off["ghost_rate"] + 0.001

@@ -38,7 +38,7 @@ from pkf.params.transport import ParametrizedExtrapolator
 from pkf.params.ut_to_scifi import covered_p_min
 from pkf.pipeline import triplet_pattern
 from pkf.pipeline.inputs import STATE_NAMES, align_mc, column, production_truth
-from pkf.pipeline.matching import match_tracks, reconstructible_sets
+from pkf.pipeline.matching import match_tracks, particle_truth_at_hits, reconstructible_sets
 from pkf.pipeline.rows import Coded, RowBlocks
 from pkf.pipeline.triplet_pattern import crowded_events, triplet_candidates
 from pkf.pipeline.truth_pattern import truth_candidates
@@ -223,6 +223,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
     if has_mc:
         hit_particle, hit_truth = align_mc(data, ev)
         production = production_truth(data)
+        hit_mc = HitTruth(particle_key(ev, hit_particle), hit_truth, column(chunk, "z"), column(chunk, "layer", np.int64))
     fitter_names = [f.name for f, _ in ctx.fitters_ext]
     timing: dict = {}
     summary = {"events": _n_events(ev), "hits": int(chunk.num_rows), "candidates": 0,
@@ -255,7 +256,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
                             "hit_id": hit_id[cand_row]})
     summary["candidates"] = n_tracks
     if has_mc:
-        hit_key = particle_key(ev, hit_particle)
+        hit_key = hit_mc.key
         mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
         mc_particle = np.where(mc_id >= 0, mc_id % PARTICLE_KEY_BASE, -1)
         scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
@@ -297,7 +298,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
             # under the electron hypothesis the parametrized q/p is no longer the production one
             # (it loses the expected radiation, pkf.fit.hypothesis): its truth is the local q/p
             at_production = fitter.qop_at_production and ctx.fit_options[fitter.name].kalman.hypothesis == "pion"
-            _add_pulls_rows(rows, fitter, batch, result, track_event, track_id, mc_particle, hit_truth,
+            _add_pulls_rows(rows, fitter, batch, result, track_event, track_id, mc_particle, hit_mc,
                             production, at_production)
     summary["timing"] = timing
     return rows, summary
@@ -385,13 +386,28 @@ def _track_states_rows(fitter, batch, result, track_event, track_id, hit_id):
     return cols
 
 
-def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_id, mc_particle, hit_truth,
+@dataclass(frozen=True)
+class HitTruth:
+    """MC truth per hit row: particle key (`particle_key`; 0 for noise), mc_hit state
+    (n_hits, 5; NaN for noise), z [mm] and layer."""
+
+    key: np.ndarray
+    state: np.ndarray
+    z: np.ndarray
+    layer: np.ndarray
+
+
+def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_id, mc_particle, hit_mc: HitTruth,
                     production, at_production) -> None:
     """Residuals and pulls at each location for tracks matched to a particle.
 
-    Truth at the first/last hit: the mc_hit state of that node's hit (q/p replaced by the
-    production q/p where the states carry it, `at_production`); at the beamline: the production
-    vertex and momentum, straight-line extrapolated to the fitted z."""
+    Truth at the first/last hit: the matched particle's state at that node's plane
+    (`particle_truth_at_hits`: the node's mc_hit, or where the hit is another particle's or noise
+    the particle's own hit on that layer; no row where it has none), q/p replaced by the
+    production q/p where the states carry it (`at_production`); at the beamline: the production
+    vertex and momentum, straight-line extrapolated to the fitted z. (Taking the node's
+    mc_hit whoever's it was gave the tracks with a foreign first hit the pulls of another
+    particle's state.)"""
     ok = (result.status == STATUS_OK) & (mc_particle > 0)
     pkey = particle_key(track_event, mc_particle)
     pos = np.searchsorted(production["key"], pkey) if production else None
@@ -412,7 +428,9 @@ def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_i
                                      production["tx"][q], production["ty"][q], production["qop"][q]])
         else:
             nodes = np.minimum(node_index[location], max(batch.z.size - 1, 0))
-            truth_all = hit_truth[batch.hit_row[nodes]] if batch.z.size else np.zeros((0, 5))
+            truth_all = (particle_truth_at_hits(batch.hit_row[nodes[ok]], pkey[ok], hit_mc.key, hit_mc.state,
+                                                hit_mc.z, hit_mc.layer) if batch.z.size else np.zeros((0, 5)))
+            truth_all = _scatter_rows(truth_all, ok)
             sel = ok & np.all(np.isfinite(truth_all), axis=1)
             if at_production:
                 sel &= has_particle
@@ -430,3 +448,10 @@ def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_i
         rows.add("pulls", cols)
 
 
+
+
+def _scatter_rows(values: np.ndarray, select: np.ndarray) -> np.ndarray:
+    """(select.size, k) array: `values` in the rows where `select`, NaN elsewhere."""
+    out = np.full((select.size, values.shape[1]), np.nan)
+    out[select] = values
+    return out

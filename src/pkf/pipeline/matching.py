@@ -148,3 +148,37 @@ def upstream_reconstructible_particles(geometry, particle_key: np.ndarray, layer
     """Keys of the particles reconstructible as upstream tracks: ≥ 3 VELO hits and ≥ 3 UT hits
     (docs/physics.md#matching-and-metrics). Empty in a geometry without UT."""
     return reconstructible_sets(geometry, particle_key, layer)["upstream"]
+
+
+def particle_truth_at_hits(rows: np.ndarray, wanted_key: np.ndarray, hit_key: np.ndarray, hit_truth: np.ndarray,
+                           hit_z: np.ndarray, layer: np.ndarray) -> np.ndarray:
+    """True state (x, y, tx, ty, q/p) of particle `wanted_key` at the plane of each hit row in `rows`.
+
+    Where the hit is the particle's own, its mc_hit state. Where it belongs to another particle
+    or is noise (a track's first or last hit can be foreign: its matched particle is the one with
+    ≥ 70 % of the hits), the particle's own mc_hit on the same layer, moved along its slopes to
+    the hit's z [mm] (x += tx·Δz, y += ty·Δz); NaN where the particle has no hit on that layer.
+    hit_key: particle key of every hit row (0 for noise), hit_truth (n_hits, 5), hit_z [mm] and
+    layer per hit row; wanted_key > 0 per row of `rows`. Returns (rows.size, 5).
+    """
+    truth = hit_truth[rows]
+    foreign = np.flatnonzero(hit_key[rows] != wanted_key)
+    if foreign.size == 0:
+        return truth
+    truth = truth.copy()
+    keys = np.unique(wanted_key[foreign])
+    mine = np.flatnonzero(np.isin(hit_key, keys))  # the hits of the particles asked for
+    n_layers = int(max(layer.max(initial=0), layer[rows].max(initial=0))) + 1
+    code = np.searchsorted(keys, hit_key[mine]) * n_layers + layer[mine]
+    order = np.argsort(code, kind="stable")
+    want = np.searchsorted(keys, wanted_key[foreign]) * n_layers + layer[rows[foreign]]
+    pos = np.minimum(np.searchsorted(code[order], want), max(order.size - 1, 0))
+    found = code[order][pos] == want if order.size else np.zeros(foreign.size, dtype=bool)
+    own = mine[order[pos]] if order.size else np.zeros(foreign.size, dtype=np.int64)
+    moved = hit_truth[own].copy()
+    dz = hit_z[rows[foreign]] - hit_z[own]
+    moved[:, 0] += moved[:, 2] * dz
+    moved[:, 1] += moved[:, 3] * dz
+    moved[~found] = np.nan
+    truth[foreign] = moved
+    return truth
