@@ -224,6 +224,7 @@ from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG, TRACK_VELO
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
+from pkf.jit import NO_REFCOUNT
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
     bethe_heitler_components,
@@ -318,14 +319,14 @@ class GsfResult(FitResult):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _copy_component(w, mu, cov, i, w2, mu2, cov2, j):
     w2[j] = w[i]
     copy5(mu[i], mu2[j])
     copy55(cov[i], cov2[j])
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _merge_into(w, mu, cov, i, j):
     """Component i ← moment-matched merge of components i and j."""
     wi = w[i]
@@ -344,7 +345,7 @@ def _merge_into(w, mu, cov, i, j):
     w[i] = wt
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _normalise_and_cut(w, mu, cov, n, cut):
     """Normalise the weights, drop components below `cut` (keeping the largest), compact.
     Returns the new number of components (0 if no weight is positive)."""
@@ -373,7 +374,7 @@ def _normalise_and_cut(w, mu, cov, n, cut):
     return out
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _kl_from_moments(q, v, iv, i, j):
     """Symmetric Kullback–Leibler distance of the q/p marginals of components i and j (as
     ACTS): (v_i − v_j)(1/v_j − 1/v_i) + (q_i − q_j)²(1/v_i + 1/v_j), from their q/p means q,
@@ -382,7 +383,7 @@ def _kl_from_moments(q, v, iv, i, j):
     return (v[i] - v[j]) * (iv[j] - iv[i]) + d * d * (iv[i] + iv[j])
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _load_qop_moments(mu, cov, k, q, v, iv):
     """Component k's q/p mean, variance and inverse variance into q, v, iv."""
     q[k] = mu[k, 4]
@@ -390,7 +391,7 @@ def _load_qop_moments(mu, cov, k, q, v, iv):
     iv[k] = 1.0 / v[k]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _closer(d, best_d, best, candidate):
     """One offer to a nearest-neighbour search: (d, candidate) if d < best_d, else
     (best_d, best) (strict: the first of equal distances stays). Scalars in and out: the
@@ -400,7 +401,7 @@ def _closer(d, best_d, best, candidate):
     return best_d, best
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _kl_row(i, n, q, v, iv, alive, dist):
     """dist[k] ← the KL distance of components i and k (`_kl_from_moments`, bitwise) for
     every live k ≠ i among the first n, +inf for i and the dead: one loop without
@@ -415,7 +416,7 @@ def _kl_row(i, n, q, v, iv, alive, dist):
     dist[i] = np.inf
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _first_min(n, dist):
     """(smallest value, its first index) of dist[:n] ((inf, −1) if none is below +inf;
     NaN never wins): `_closer` offered the values in index order."""
@@ -428,7 +429,7 @@ def _first_min(n, dist):
     return best_d, best
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _move_component(w, mu, cov, moments, nearest, src, dst):
     """Component src, its q/p moments and its nearest-neighbour record into slot dst."""
     _copy_component(w, mu, cov, src, w, mu, cov, dst)
@@ -437,7 +438,7 @@ def _move_component(w, mu, cov, moments, nearest, src, dst):
     nearest[dst] = nearest[src]
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
     returns the new count (the components stay compact in the first slots). `moments`
@@ -503,7 +504,7 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     return count
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _total_weight(w, n):
     """Σ w_c over the first n components, in component order."""
     total = 0.0
@@ -512,7 +513,7 @@ def _total_weight(w, n):
     return total
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _collapse(w, mu, cov, n, out_mean, out_cov):
     """Mean and covariance of the mixture (moment matching)."""
     total = _total_weight(w, n)
@@ -524,7 +525,7 @@ def _collapse(w, mu, cov, n, out_mean, out_cov):
     _second_moment(w, mu, cov, n, out_mean, out_cov)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _second_moment(w, mu, cov, n, centre, out_cov):
     """Covariance of the mixture about `centre`: Σ w_c·(P_c + (μ_c − centre)(μ_c − centre)ᵀ)."""
     total = _total_weight(w, n)
@@ -536,7 +537,7 @@ def _second_moment(w, mu, cov, n, centre, out_cov):
             out_cov[k, l] = s / total
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
     """The mixture's peak around component `mode`: the moment-matched merge of the
     components whose q/p is compatible with the mode's, |μ_j − μ_m| ≤ window·√(v_j + v_m)."""
@@ -564,7 +565,7 @@ def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
                     out_cov[k, l] += a * (cov[c, k, l] + (mu[c, k] - out_mean[k]) * (mu[c, l] - out_mean[l]))
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _largest(w, n):
     best = 0
     for c in range(1, n):
@@ -573,7 +574,7 @@ def _largest(w, n):
     return best
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _mode_component(w, mu, cov, n):
     """The component at whose q/p mean the mixture's q/p marginal density is highest."""
     best = 0
@@ -590,7 +591,7 @@ def _mode_component(w, mu, cov, n):
     return best
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     """Output "core": the Gaussian core of the mixture's q/p marginal f and the other
     parameters given q/p at its centre (see the module docstring).
@@ -670,7 +671,7 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     out_mean[4] = q
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def widen_to_mixture(cov, mixture_cov):
     """Write the smoothed mixture's covariance about the written state, `mixture_cov`
     (5×5, `_second_moment`), over `cov` (the core's or the peak's) where its q/p variance
@@ -693,7 +694,7 @@ def widen_to_mixture(cov, mixture_cov):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians and the leading one stays in the
@@ -743,7 +744,7 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
     return alive
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _finite55(a):
     """Whether every element of the 5×5 matrix a is finite."""
     for i in range(5):
@@ -753,7 +754,7 @@ def _finite55(a):
     return True
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _finite_diagonal(cov):
     """Whether the variances of the 5×5 covariance cov are finite."""
     for i in range(5):
@@ -762,7 +763,7 @@ def _finite_diagonal(cov):
     return True
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
     """Material of plane k for every component of (w, mu, cov)[:n], written into
     (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
@@ -834,7 +835,7 @@ class MixtureMaterial(NamedTuple):
     bh: np.ndarray
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _mixture_transport(actor, ext, z_from, z_to, crossed):
     """RK4 of every component; the components that left the envelope are dropped."""
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
@@ -846,7 +847,7 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _mixture_interact(actor, ext, k, direction):
     """Material and Bethe–Heitler convolution of plane k, weight cut, reduction."""
     w, mu, cov, w2, mu2, cov2 = actor.buf
@@ -865,7 +866,7 @@ register_actor(MixtureMaterial, _mixture_transport, _mixture_interact)
 _propagate_mixture = propagator(_mixture_transport, _mixture_interact)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, alive, scratch, bh):
     """Transport the mixture buf[0:3] (n components) from z_from to z_to through the
     material planes in (min z, max z] (`MixtureMaterial`); buf = (w, mu, cov) × 2 working
@@ -877,7 +878,7 @@ def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, alive, scratc
     return count[0]
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     """Per-component Kalman update with node (n_meas, hx, hy, m, sigma) and weight
     re-scaling by the predictive likelihoods. Returns the new component count."""
@@ -903,7 +904,7 @@ def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     return _normalise_and_cut(w, mu, cov, n, weight_cut)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     """χ² increment of the node with the collapsed predicted mixture (−1 on failure)."""
     _collapse(w, mu, cov, n, mean, cmat)
@@ -916,7 +917,7 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     return chi2
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
     """ssum ← P_i + B_j and its equilibrated Cholesky factor (`equilibrated_cholesky`:
     D·ssum·D = L·Lᵀ, D = diag(scale)) into lu. False if P_i + B_j is not positive definite."""
@@ -926,7 +927,7 @@ def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
     return equilibrated_cholesky(ssum, lu, scale)
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
     """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S), d = ν_j − μ_i, for
     S = ssum factored by `_pair_factor`: one forward substitution y = L⁻¹·D·d (y is
@@ -951,7 +952,7 @@ def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
     return -0.5 * (q + logdet)
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
     """The Gaussian product of forward component i and the backward component whose sum
     with it `_pair_factor` factored (lu, scale) and `_pair_log_overlap` solved (y):
@@ -983,7 +984,7 @@ def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
     return ok
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, moments, alive,
              out_mean, out_cov, scratch, vec):
     """Product of the forward-predicted and backward-filtered mixtures at a node into
@@ -1060,7 +1061,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, alive, out_mean, out_cov)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
     its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
@@ -1078,7 +1079,7 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
     return n
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _keep_qop_mixture(w, mu, cov, n, out):
     """Store the q/p marginal (weight, mean [1/MeV], variance) of (w, mu, cov)[:n] in out
     (K, 3) when out has rows (K ≥ n), padding with zero weights."""
@@ -1095,7 +1096,7 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _decouple_qop(cov, nc):
     """A VELO-only prediction (QOP_PRIOR_ONLY): zero every component's q/p cross-covariances,
     so that the update that follows leaves its q/p (mean and variance) as it is. The hits
@@ -1108,7 +1109,7 @@ def _decouple_qop(cov, nc):
             cov[c, i, 4] = 0.0
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
     """A VELO-only node (QOP_PRIOR_ONLY): the smoothed state keeps x, y, tx, ty and takes the
     q/p mean and variance of the forward prediction (fw, fmu, fcov)[:nf] collapsed, with no
@@ -1136,7 +1137,7 @@ def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
     return 1
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
                buf, pbuf, count, nearest, moments, alive, scratch, bh, vec, out_state, out_cov, out_mix,
                stages, lo, out_mixture_cov, qop_prior_kind):
@@ -1321,7 +1322,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         np.zeros(5), np.zeros(n_tracks, dtype=np.int64))
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_begin(f, t, seed):
     """STATUS_NO_SEED for a non-finite seed."""
     f.out_n_components[t] = 0
@@ -1331,7 +1332,7 @@ def _gsf_begin(f, t, seed):
     return STATUS_OK
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
     """`_fit_track` with the fitter's scratch; the component count into out_n_components.
     With bremsstrahlung modelled, a fit whose first-hit momentum came out more than
@@ -1366,7 +1367,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     return status, chi2
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_end(f, t, lo, hi, status, out_state, out_cov):
     """A failed track has NaN states and covariances. A fitted one's "core" and "mode"
     outputs get, at every node, the covariance of the whole mixture about the written
@@ -1380,7 +1381,7 @@ def _gsf_end(f, t, lo, hi, status, out_state, out_cov):
             widen_to_mixture(out_cov[k], f.mixture_cov[k])
 
 
-register_fitter(GsfFitter, _gsf_begin, _gsf_fit, _gsf_end)
+register_fitter(GsfFitter, _gsf_begin, _gsf_fit, _gsf_end, allocates=False)
 
 
 def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray,
