@@ -575,8 +575,11 @@ def _largest(w, n):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _mode_component(w, mu, cov, n):
-    """The component at whose q/p mean the mixture's q/p marginal density is highest."""
+def _mode_component(w, mu, cov, n, root):
+    """The component at whose q/p mean the mixture's q/p marginal density is highest
+    (root: scratch, ≥ n, for each component's q/p width √v, taken once)."""
+    for j in range(n):
+        root[j] = math.sqrt(cov[j, 4, 4])
     best = 0
     best_density = -1.0
     for c in range(n):
@@ -584,7 +587,7 @@ def _mode_component(w, mu, cov, n):
         for j in range(n):
             v = cov[j, 4, 4]
             d = mu[c, 4] - mu[j, 4]
-            density += w[j] * math.exp(-0.5 * d * d / v) / math.sqrt(v)
+            density += w[j] * math.exp(-0.5 * d * d / v) / root[j]
         if density > best_density:
             best_density = density
             best = c
@@ -985,7 +988,7 @@ def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, moments, alive,
+def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pvec, nearest, moments, alive,
              out_mean, out_cov, scratch, vec):
     """Product of the forward-predicted and backward-filtered mixtures at a node into
     (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
@@ -995,26 +998,31 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     with log weight log a_i + log b_j + log N(μ_i; ν_j, P_i + B_j) (`_pair_log_overlap`).
     The products' means and covariances (`_pair_product`) are computed only for the
     candidates the weight cut keeps (w/Σw ≥ weight_cut, and the largest; on lhcb-like
-    electrons 61 of 133). A candidate whose product has a non-positive variance is no
-    candidate (as when every product was computed first: it counts neither in the
-    largest weight nor in the sum), and the cut is made again without it. Equal to
-    computing every product first (02cf0ed) up to rounding."""
+    electrons 61 of 133), from each candidate's Cholesky factor, scales and substitution
+    kept from its weight (plu (≥ candidates, 5, 5), pvec (≥ candidates, 10)), and each
+    candidate's exp(log weight − largest) is taken once per cut. A candidate whose product has a
+    non-positive variance is no candidate (as when every product was computed first: it
+    counts neither in the largest weight nor in the sum), and the cut is made again
+    without it. Equal to computing every product first (02cf0ed) up to rounding."""
     ssum = scratch[0]
-    lu = scratch[2]
     x = scratch[3]
     y = vec[:5]
-    scale = vec[5:10]
     pair = nearest
     state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
+    scaled = moments[1]  # exp(log weight − largest) of each candidate
+    log_bw = moments[2]  # log b_j
+    for j in range(nb_):
+        log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
     n = 0
     for i in range(nf):
         if not fw[i] > 0.0:
             continue
         log_fw = math.log(fw[i])
         for j in range(nb_):
-            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, lu, scale)):
+            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, plu[n], pvec[n, 5:10])):
                 continue
-            pw[n] = log_fw + math.log(bw[j]) + _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y)
+            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(fmu, i, bmu, j, ssum, plu[n], pvec[n, 5:10],
+                                                          pvec[n, :5])
             if math.isnan(pw[n]):
                 continue
             pair[n] = i * nb_ + j
@@ -1031,17 +1039,16 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
             return 0
         total = 0.0
         for c in range(n):
+            scaled[c] = math.exp(pw[c] - largest)
             if state[c] >= 0.0:
-                total += math.exp(pw[c] - largest)
+                total += scaled[c]
         failed = False
         for c in range(n):
-            w = math.exp(pw[c] - largest)
+            w = scaled[c]
             if state[c] == 0.0 and (c == best or (w > 0.0 and w / total >= ctx.weight_cut)):
                 i = pair[c] // nb_
-                j = pair[c] % nb_
-                _pair_factor(fcov, i, bcov, j, ssum, lu, scale)
-                _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y)
-                if _pair_product(fmu, fcov, i, lu, scale, y, x, pmu[c], pcov[c]):
+                copy5(pvec[c, :5], y)  # pmu[c] is written over
+                if _pair_product(fmu, fcov, i, plu[c], pvec[c, 5:10], y, x, pmu[c], pcov[c]):
                     state[c] = 1.0
                 else:
                     state[c] = -1.0
@@ -1051,7 +1058,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     m = 0
     for c in range(n):
         if state[c] == 1.0:
-            w = math.exp(pw[c] - largest)
+            w = scaled[c]
             if c == best or (w > 0.0 and w / total >= ctx.weight_cut):
                 pw[m] = w
                 if m != c:
@@ -1073,7 +1080,7 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
         copy5(mu[_largest(w, n)], out_mean)
         _second_moment(w, mu, cov, n, out_mean, out_cov)
     else:
-        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n), ctx.peak_window, out_mean, out_cov)
+        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n, moments[0]), ctx.peak_window, out_mean, out_cov)
         if ctx.output == OUTPUT_CORE:
             _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov)
     return n
@@ -1151,7 +1158,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     components of the smoothed mixture at the first node)."""
     n = z.size
     w, mu, cov = buf[0], buf[1], buf[2]
-    pw, pmu, pcov = pbuf
+    pw, pmu, pcov, plu, pvec = pbuf
     mean = vec[15:20]
     cmat = scratch[5]
     chi2 = 0.0
@@ -1234,7 +1241,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             if nc == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
         if k < n - 1:
-            n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
+            n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov, plu, pvec,
                                nearest, moments, alive, out_state[k], out_cov[k], scratch, vec)
             if n_first == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
@@ -1308,7 +1315,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         ctx, True, np.zeros(n_tracks, dtype=np.int64), qop_mixture,
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros(cap), np.zeros((cap, 5)),
          np.zeros((cap, 5, 5))),
-        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5))),
+        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 10))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((5, cap)),
         np.zeros(cap, dtype=np.bool_),
