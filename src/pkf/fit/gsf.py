@@ -326,7 +326,7 @@ def _copy_component(w, mu, cov, i, w2, mu2, cov2, j):
     copy55(cov[i], cov2[j])
 
 
-@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _merge_into(w, mu, cov, i, j):
     """Component i ← moment-matched merge of components i and j."""
     wi = w[i]
@@ -402,31 +402,54 @@ def _closer(d, best_d, best, candidate):
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _kl_row(i, n, q, v, iv, alive, dist):
+def _kl_row(i, n, q, v, iv, dist):
     """dist[k] ← the KL distance of components i and k (`_kl_from_moments`, bitwise) for
-    every live k ≠ i among the first n, +inf for i and the dead: one loop without
-    branches over contiguous arrays, which the compiler vectorises."""
+    every k ≠ i among the first n, +inf for i: one loop without branches over contiguous
+    arrays, which the compiler vectorises (the mixture is compact: every slot is live)."""
     qi = q[i]
     vi = v[i]
     ivi = iv[i]
     for k in range(n):
         d = qi - q[k]
-        x = (vi - v[k]) * (iv[k] - ivi) + d * d * (ivi + iv[k])
-        dist[k] = x if alive[k] else np.inf
+        dist[k] = (vi - v[k]) * (iv[k] - ivi) + d * d * (ivi + iv[k])
     dist[i] = np.inf
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _first_min(n, dist):
     """(smallest value, its first index) of dist[:n] ((inf, −1) if none is below +inf;
-    NaN never wins): `_closer` offered the values in index order."""
-    best_d = np.inf
-    best = -1
-    for k in range(n):
-        if dist[k] < best_d:
-            best_d = dist[k]
-            best = k
-    return best_d, best
+    NaN never wins): what `_closer` offered the values in index order gives. Two passes:
+    the smallest value in four interleaved running minima without branches (the compiler
+    keeps them in one vector register; the minimum of a set does not depend on the order
+    of the comparisons), then the first index holding it (a scan that stops there). The
+    branchy single pass was ×1.2 slower in `_reduce` (64–100 components)."""
+    m0 = np.inf
+    m1 = np.inf
+    m2 = np.inf
+    m3 = np.inf
+    k = 0
+    while k + 4 <= n:
+        x0 = dist[k]
+        x1 = dist[k + 1]
+        x2 = dist[k + 2]
+        x3 = dist[k + 3]
+        m0 = x0 if x0 < m0 else m0
+        m1 = x1 if x1 < m1 else m1
+        m2 = x2 if x2 < m2 else m2
+        m3 = x3 if x3 < m3 else m3
+        k += 4
+    while k < n:
+        x0 = dist[k]
+        m0 = x0 if x0 < m0 else m0
+        k += 1
+    m0 = m1 if m1 < m0 else m0
+    m0 = m2 if m2 < m0 else m0
+    m0 = m3 if m3 < m0 else m0
+    if m0 < np.inf:
+        for k in range(n):
+            if dist[k] == m0:
+                return dist[k], k
+    return np.inf, -1
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
@@ -445,7 +468,7 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     (5, ≥ n) is scratch: the nearest distance of each component, its q/p mean, variance
     and inverse variance, and one row of distances, kept contiguous so that a distance
     costs no division and no strided load; `nearest` (≥ n) int: each component's
-    nearest neighbour; `alive` (≥ n) bool scratch.
+    nearest neighbour; `alive` is not used (the mixture stays compact).
 
     Nearest-neighbour bookkeeping: every component knows its nearest neighbour; the pair
     merged is the component with the smallest such distance and its neighbour (the
@@ -464,17 +487,13 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     nn = nearest
     nearest_d, q, v, iv, dist = moments[0], moments[1], moments[2], moments[3], moments[4]
     for i in range(n):
-        alive[i] = True
         _load_qop_moments(mu, cov, i, q, v, iv)
     for i in range(n):
-        _kl_row(i, n, q, v, iv, alive, dist)
+        _kl_row(i, n, q, v, iv, dist)
         nearest_d[i], nn[i] = _first_min(n, dist)
     count = n
     while count > max_n:
-        i = 0
-        for k in range(1, count):
-            if nearest_d[k] < nearest_d[i]:
-                i = k
+        i = max(_first_min(count, nearest_d)[1], 0)  # the first smallest (the first if none is finite)
         j = nn[i]
         if j < 0:  # no comparable distance (a NaN variance): merge with any other, never stop short
             j = 1 if i == 0 else 0
@@ -491,9 +510,9 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
                 i = j
         for k in range(count):
             if k != i and nn[k] == -2:
-                _kl_row(k, count, q, v, iv, alive, dist)
+                _kl_row(k, count, q, v, iv, dist)
                 nearest_d[k], nn[k] = _first_min(count, dist)
-        _kl_row(i, count, q, v, iv, alive, dist)
+        _kl_row(i, count, q, v, iv, dist)
         near_d, near = _first_min(count, dist)
         for k in range(count):
             closer = dist[k] < nearest_d[k]
