@@ -164,7 +164,9 @@ Jacobian algebra per component. With ``share_jacobians=False`` every component
 integrates its own. Measured (`python benchmarks/gsf_components.py --events 100
 --repeat 3`, lhcb-like electrons, one loaded 2-core machine): 1.5 / 3.7 / 6.2 / 9.1 ms
 per track with at most 4 / 8 / 12 / 16 components (≈ n^1.3), 8.9 ms at 12 with a
-Jacobian per component, 0.24 ms for the reference Kalman fit. Sharing changes the output
+Jacobian per component, 0.24 ms for the reference Kalman fit (efa2332); after issue 18.2
+(below; wall time, the 2 cores shared with two other jobs) 1.31 / 2.86 / 4.89 / 7.28 ms,
+7.35 ms with a Jacobian per component, 0.16 ms for the reference Kalman fit. Sharing changes the output
 states by 0.005σ (x, y, tx, ty) and 0.13σ (q/p) RMS at the first hit, up to 0.26σ in q/p
 at the last hit (the KL reduction follows small differences), with the same resolutions.
 
@@ -193,8 +195,33 @@ leading one is 18 % of the total (ablated, not moved at all: 4.43 → 3.62 ms), 
 in the magnet (the 5 m between UT and SciFi are 52 steps of 100 mm for each component);
 moving the components by the leading one's Jacobian where the field bends them apart by
 less than 1e−5 rad (the VELO) together with one Bethe–Heitler evaluation per plane
-changed the time by −3…+1 % (within the machine's noise) and is not done. numba's
-reference counting is already pruned from these kernels (no NRT_incref in `_reduce`'s IR).
+changed the time by −3…+1 % (within the machine's noise) and is not done.
+
+Issue 18.2, three changes with bitwise identical outputs (states, covariances, χ², node χ²,
+component counts, passes, kept q/p mixtures and per-stage states of 946 lhcb-like
+electron tracks with every output and 4/12/16 components, with and without shared
+Jacobians, and of the telescope electrons): (1) the GSF's track loop and kernels run
+without numba's reference counting (`pkf.jit.NO_REFCOUNT`; the fitter registered with
+``allocates=False``, as the Kalman core and the GX2F): perf with a map of the JIT
+symbols had 23 % of all samples on the two atomic instructions of NRT_incref/decref
+(×0.78); (2) the smoothing keeps each candidate pair's Cholesky factor, scales and
+substitution from its weight for its product instead of factorising the kept pairs
+again, takes log b_j once per backward component and exp(log weight − largest) once
+per candidate and cut, and the mode search each √v once (×0.95); (3) the reduction's
+nearest-neighbour searches (`_first_min`) take the smallest distance in four
+interleaved running minima without branches and then its first index (×0.92). lhcb-like
+electrons (`benchmarks/gsf_components.py` sample, 946 tracks, 12 components; main and
+this tree alternating in two processes, CPU time, best of 2 per round, 6 rounds, a
+loaded machine): 4.96–5.17 → 3.35–3.58 ms per track (×0.69 per round, median);
+telescope electrons (`benchmarks/vs_acts.py` sample, 200 events, 2,000 tracks, 6 rounds
+of best of 3): 0.72–0.79 → 0.49–0.54 ms (×0.68). Profile after (perf, the same JIT
+symbol map): `_reduce` 36 % of the samples of a run (sample generation included),
+`_combine` 8 %, the field map 9 %. Tried and not kept: the initial neighbour search
+over each pair once (the distance is symmetric bit for bit, but offering each row to the
+later components costs more than the half row saves: ×1.1–1.2 slower on the
+reduction), fusing the distance row with the search or the offers (slower), per-lane
+first indices in `_first_min` with a branch for the offers (×0.90 on the reduction
+alone, ×0.993 on the fit: within the noise).
 
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
