@@ -164,7 +164,9 @@ Jacobian algebra per component. With ``share_jacobians=False`` every component
 integrates its own. Measured (`python benchmarks/gsf_components.py --events 100
 --repeat 3`, lhcb-like electrons, one loaded 2-core machine): 1.5 / 3.7 / 6.2 / 9.1 ms
 per track with at most 4 / 8 / 12 / 16 components (≈ n^1.3), 8.9 ms at 12 with a
-Jacobian per component, 0.24 ms for the reference Kalman fit. Sharing changes the output
+Jacobian per component, 0.24 ms for the reference Kalman fit (efa2332); after issue 18.2
+(below; wall time, the 2 cores shared with two other jobs) 1.31 / 2.86 / 4.89 / 7.28 ms,
+7.35 ms with a Jacobian per component, 0.16 ms for the reference Kalman fit. Sharing changes the output
 states by 0.005σ (x, y, tx, ty) and 0.13σ (q/p) RMS at the first hit, up to 0.26σ in q/p
 at the last hit (the KL reduction follows small differences), with the same resolutions.
 
@@ -193,8 +195,33 @@ leading one is 18 % of the total (ablated, not moved at all: 4.43 → 3.62 ms), 
 in the magnet (the 5 m between UT and SciFi are 52 steps of 100 mm for each component);
 moving the components by the leading one's Jacobian where the field bends them apart by
 less than 1e−5 rad (the VELO) together with one Bethe–Heitler evaluation per plane
-changed the time by −3…+1 % (within the machine's noise) and is not done. numba's
-reference counting is already pruned from these kernels (no NRT_incref in `_reduce`'s IR).
+changed the time by −3…+1 % (within the machine's noise) and is not done.
+
+Issue 18.2, three changes with bitwise identical outputs (states, covariances, χ², node χ²,
+component counts, passes, kept q/p mixtures and per-stage states of 946 lhcb-like
+electron tracks with every output and 4/12/16 components, with and without shared
+Jacobians, and of the telescope electrons): (1) the GSF's track loop and kernels run
+without numba's reference counting (`pkf.jit.NO_REFCOUNT`; the fitter registered with
+``allocates=False``, as the Kalman core and the GX2F): perf with a map of the JIT
+symbols had 23 % of all samples on the two atomic instructions of NRT_incref/decref
+(×0.78); (2) the smoothing keeps each candidate pair's Cholesky factor, scales and
+substitution from its weight for its product instead of factorising the kept pairs
+again, takes log b_j once per backward component and exp(log weight − largest) once
+per candidate and cut, and the mode search each √v once (×0.95); (3) the reduction's
+nearest-neighbour searches (`_first_min`) take the smallest distance in four
+interleaved running minima without branches and then its first index (×0.92). lhcb-like
+electrons (`benchmarks/gsf_components.py` sample, 946 tracks, 12 components; main and
+this tree alternating in two processes, CPU time, best of 2 per round, 6 rounds, a
+loaded machine): 4.96–5.17 → 3.35–3.58 ms per track (×0.69 per round, median);
+telescope electrons (`benchmarks/vs_acts.py` sample, 200 events, 2,000 tracks, 6 rounds
+of best of 3): 0.72–0.79 → 0.49–0.54 ms (×0.68). Profile after (perf, the same JIT
+symbol map): `_reduce` 36 % of the samples of a run (sample generation included),
+`_combine` 8 %, the field map 9 %. Tried and not kept: the initial neighbour search
+over each pair once (the distance is symmetric bit for bit, but offering each row to the
+later components costs more than the half row saves: ×1.1–1.2 slower on the
+reduction), fusing the distance row with the search or the offers (slower), per-lane
+first indices in `_first_min` with a branch for the offers (×0.90 on the reduction
+alone, ×0.993 on the fit: within the noise).
 
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
@@ -224,6 +251,7 @@ from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG, TRACK_VELO
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
+from pkf.jit import NO_REFCOUNT
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
     bethe_heitler_components,
@@ -318,14 +346,14 @@ class GsfResult(FitResult):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _copy_component(w, mu, cov, i, w2, mu2, cov2, j):
     w2[j] = w[i]
     copy5(mu[i], mu2[j])
     copy55(cov[i], cov2[j])
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _merge_into(w, mu, cov, i, j):
     """Component i ← moment-matched merge of components i and j."""
     wi = w[i]
@@ -344,7 +372,7 @@ def _merge_into(w, mu, cov, i, j):
     w[i] = wt
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _normalise_and_cut(w, mu, cov, n, cut):
     """Normalise the weights, drop components below `cut` (keeping the largest), compact.
     Returns the new number of components (0 if no weight is positive)."""
@@ -373,7 +401,7 @@ def _normalise_and_cut(w, mu, cov, n, cut):
     return out
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _kl_from_moments(q, v, iv, i, j):
     """Symmetric Kullback–Leibler distance of the q/p marginals of components i and j (as
     ACTS): (v_i − v_j)(1/v_j − 1/v_i) + (q_i − q_j)²(1/v_i + 1/v_j), from their q/p means q,
@@ -382,7 +410,7 @@ def _kl_from_moments(q, v, iv, i, j):
     return (v[i] - v[j]) * (iv[j] - iv[i]) + d * d * (iv[i] + iv[j])
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _load_qop_moments(mu, cov, k, q, v, iv):
     """Component k's q/p mean, variance and inverse variance into q, v, iv."""
     q[k] = mu[k, 4]
@@ -390,7 +418,7 @@ def _load_qop_moments(mu, cov, k, q, v, iv):
     iv[k] = 1.0 / v[k]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _closer(d, best_d, best, candidate):
     """One offer to a nearest-neighbour search: (d, candidate) if d < best_d, else
     (best_d, best) (strict: the first of equal distances stays). Scalars in and out: the
@@ -400,35 +428,58 @@ def _closer(d, best_d, best, candidate):
     return best_d, best
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
-def _kl_row(i, n, q, v, iv, alive, dist):
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _kl_row(i, n, q, v, iv, dist):
     """dist[k] ← the KL distance of components i and k (`_kl_from_moments`, bitwise) for
-    every live k ≠ i among the first n, +inf for i and the dead: one loop without
-    branches over contiguous arrays, which the compiler vectorises."""
+    every k ≠ i among the first n, +inf for i: one loop without branches over contiguous
+    arrays, which the compiler vectorises (the mixture is compact: every slot is live)."""
     qi = q[i]
     vi = v[i]
     ivi = iv[i]
     for k in range(n):
         d = qi - q[k]
-        x = (vi - v[k]) * (iv[k] - ivi) + d * d * (ivi + iv[k])
-        dist[k] = x if alive[k] else np.inf
+        dist[k] = (vi - v[k]) * (iv[k] - ivi) + d * d * (ivi + iv[k])
     dist[i] = np.inf
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _first_min(n, dist):
     """(smallest value, its first index) of dist[:n] ((inf, −1) if none is below +inf;
-    NaN never wins): `_closer` offered the values in index order."""
-    best_d = np.inf
-    best = -1
-    for k in range(n):
-        if dist[k] < best_d:
-            best_d = dist[k]
-            best = k
-    return best_d, best
+    NaN never wins): what `_closer` offered the values in index order gives. Two passes:
+    the smallest value in four interleaved running minima without branches (the compiler
+    keeps them in one vector register; the minimum of a set does not depend on the order
+    of the comparisons), then the first index holding it (a scan that stops there). The
+    branchy single pass was ×1.2 slower in `_reduce` (64–100 components)."""
+    m0 = np.inf
+    m1 = np.inf
+    m2 = np.inf
+    m3 = np.inf
+    k = 0
+    while k + 4 <= n:
+        x0 = dist[k]
+        x1 = dist[k + 1]
+        x2 = dist[k + 2]
+        x3 = dist[k + 3]
+        m0 = x0 if x0 < m0 else m0
+        m1 = x1 if x1 < m1 else m1
+        m2 = x2 if x2 < m2 else m2
+        m3 = x3 if x3 < m3 else m3
+        k += 4
+    while k < n:
+        x0 = dist[k]
+        m0 = x0 if x0 < m0 else m0
+        k += 1
+    m0 = m1 if m1 < m0 else m0
+    m0 = m2 if m2 < m0 else m0
+    m0 = m3 if m3 < m0 else m0
+    if m0 < np.inf:
+        for k in range(n):
+            if dist[k] == m0:
+                return dist[k], k
+    return np.inf, -1
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _move_component(w, mu, cov, moments, nearest, src, dst):
     """Component src, its q/p moments and its nearest-neighbour record into slot dst."""
     _copy_component(w, mu, cov, src, w, mu, cov, dst)
@@ -437,14 +488,14 @@ def _move_component(w, mu, cov, moments, nearest, src, dst):
     nearest[dst] = nearest[src]
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
     returns the new count (the components stay compact in the first slots). `moments`
     (5, ≥ n) is scratch: the nearest distance of each component, its q/p mean, variance
     and inverse variance, and one row of distances, kept contiguous so that a distance
     costs no division and no strided load; `nearest` (≥ n) int: each component's
-    nearest neighbour; `alive` (≥ n) bool scratch.
+    nearest neighbour; `alive` is not used (the mixture stays compact).
 
     Nearest-neighbour bookkeeping: every component knows its nearest neighbour; the pair
     merged is the component with the smallest such distance and its neighbour (the
@@ -463,17 +514,13 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     nn = nearest
     nearest_d, q, v, iv, dist = moments[0], moments[1], moments[2], moments[3], moments[4]
     for i in range(n):
-        alive[i] = True
         _load_qop_moments(mu, cov, i, q, v, iv)
     for i in range(n):
-        _kl_row(i, n, q, v, iv, alive, dist)
+        _kl_row(i, n, q, v, iv, dist)
         nearest_d[i], nn[i] = _first_min(n, dist)
     count = n
     while count > max_n:
-        i = 0
-        for k in range(1, count):
-            if nearest_d[k] < nearest_d[i]:
-                i = k
+        i = max(_first_min(count, nearest_d)[1], 0)  # the first smallest (the first if none is finite)
         j = nn[i]
         if j < 0:  # no comparable distance (a NaN variance): merge with any other, never stop short
             j = 1 if i == 0 else 0
@@ -490,9 +537,9 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
                 i = j
         for k in range(count):
             if k != i and nn[k] == -2:
-                _kl_row(k, count, q, v, iv, alive, dist)
+                _kl_row(k, count, q, v, iv, dist)
                 nearest_d[k], nn[k] = _first_min(count, dist)
-        _kl_row(i, count, q, v, iv, alive, dist)
+        _kl_row(i, count, q, v, iv, dist)
         near_d, near = _first_min(count, dist)
         for k in range(count):
             closer = dist[k] < nearest_d[k]
@@ -503,7 +550,7 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
     return count
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _total_weight(w, n):
     """Σ w_c over the first n components, in component order."""
     total = 0.0
@@ -512,7 +559,7 @@ def _total_weight(w, n):
     return total
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _collapse(w, mu, cov, n, out_mean, out_cov):
     """Mean and covariance of the mixture (moment matching)."""
     total = _total_weight(w, n)
@@ -524,7 +571,7 @@ def _collapse(w, mu, cov, n, out_mean, out_cov):
     _second_moment(w, mu, cov, n, out_mean, out_cov)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _second_moment(w, mu, cov, n, centre, out_cov):
     """Covariance of the mixture about `centre`: Σ w_c·(P_c + (μ_c − centre)(μ_c − centre)ᵀ)."""
     total = _total_weight(w, n)
@@ -536,7 +583,7 @@ def _second_moment(w, mu, cov, n, centre, out_cov):
             out_cov[k, l] = s / total
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
     """The mixture's peak around component `mode`: the moment-matched merge of the
     components whose q/p is compatible with the mode's, |μ_j − μ_m| ≤ window·√(v_j + v_m)."""
@@ -564,7 +611,7 @@ def _peak(w, mu, cov, n, mode, window, out_mean, out_cov):
                     out_cov[k, l] += a * (cov[c, k, l] + (mu[c, k] - out_mean[k]) * (mu[c, l] - out_mean[l]))
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _largest(w, n):
     best = 0
     for c in range(1, n):
@@ -573,9 +620,12 @@ def _largest(w, n):
     return best
 
 
-@nb.njit(cache=True, error_model="numpy")
-def _mode_component(w, mu, cov, n):
-    """The component at whose q/p mean the mixture's q/p marginal density is highest."""
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _mode_component(w, mu, cov, n, root):
+    """The component at whose q/p mean the mixture's q/p marginal density is highest
+    (root: scratch, ≥ n, for each component's q/p width √v, taken once)."""
+    for j in range(n):
+        root[j] = math.sqrt(cov[j, 4, 4])
     best = 0
     best_density = -1.0
     for c in range(n):
@@ -583,14 +633,14 @@ def _mode_component(w, mu, cov, n):
         for j in range(n):
             v = cov[j, 4, 4]
             d = mu[c, 4] - mu[j, 4]
-            density += w[j] * math.exp(-0.5 * d * d / v) / math.sqrt(v)
+            density += w[j] * math.exp(-0.5 * d * d / v) / root[j]
         if density > best_density:
             best_density = density
             best = c
     return best
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     """Output "core": the Gaussian core of the mixture's q/p marginal f and the other
     parameters given q/p at its centre (see the module docstring).
@@ -670,7 +720,7 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     out_mean[4] = q
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def widen_to_mixture(cov, mixture_cov):
     """Write the smoothed mixture's covariance about the written state, `mixture_cov`
     (5×5, `_second_moment`), over `cov` (the core's or the peak's) where its q/p variance
@@ -693,7 +743,7 @@ def widen_to_mixture(cov, mixture_cov):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians and the leading one stays in the
@@ -743,7 +793,7 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
     return alive
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _finite55(a):
     """Whether every element of the 5×5 matrix a is finite."""
     for i in range(5):
@@ -753,7 +803,7 @@ def _finite55(a):
     return True
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _finite_diagonal(cov):
     """Whether the variances of the 5×5 covariance cov are finite."""
     for i in range(5):
@@ -762,7 +812,7 @@ def _finite_diagonal(cov):
     return True
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
     """Material of plane k for every component of (w, mu, cov)[:n], written into
     (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
@@ -834,7 +884,7 @@ class MixtureMaterial(NamedTuple):
     bh: np.ndarray
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _mixture_transport(actor, ext, z_from, z_to, crossed):
     """RK4 of every component; the components that left the envelope are dropped."""
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
@@ -846,7 +896,7 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _mixture_interact(actor, ext, k, direction):
     """Material and Bethe–Heitler convolution of plane k, weight cut, reduction."""
     w, mu, cov, w2, mu2, cov2 = actor.buf
@@ -865,7 +915,7 @@ register_actor(MixtureMaterial, _mixture_transport, _mixture_interact)
 _propagate_mixture = propagator(_mixture_transport, _mixture_interact)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, alive, scratch, bh):
     """Transport the mixture buf[0:3] (n components) from z_from to z_to through the
     material planes in (min z, max z] (`MixtureMaterial`); buf = (w, mu, cov) × 2 working
@@ -877,7 +927,7 @@ def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, alive, scratc
     return count[0]
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     """Per-component Kalman update with node (n_meas, hx, hy, m, sigma) and weight
     re-scaling by the predictive likelihoods. Returns the new component count."""
@@ -903,7 +953,7 @@ def _update(w, mu, cov, n, n_meas, hx, hy, m, sigma, weight_cut):
     return _normalise_and_cut(w, mu, cov, n, weight_cut)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     """χ² increment of the node with the collapsed predicted mixture (−1 on failure)."""
     _collapse(w, mu, cov, n, mean, cmat)
@@ -916,7 +966,7 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
     return chi2
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
     """ssum ← P_i + B_j and its equilibrated Cholesky factor (`equilibrated_cholesky`:
     D·ssum·D = L·Lᵀ, D = diag(scale)) into lu. False if P_i + B_j is not positive definite."""
@@ -926,7 +976,7 @@ def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
     return equilibrated_cholesky(ssum, lu, scale)
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
     """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S), d = ν_j − μ_i, for
     S = ssum factored by `_pair_factor`: one forward substitution y = L⁻¹·D·d (y is
@@ -951,7 +1001,7 @@ def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
     return -0.5 * (q + logdet)
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
     """The Gaussian product of forward component i and the backward component whose sum
     with it `_pair_factor` factored (lu, scale) and `_pair_log_overlap` solved (y):
@@ -983,8 +1033,8 @@ def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
     return ok
 
 
-@nb.njit(cache=True, error_model="numpy")
-def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest, moments, alive,
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pvec, nearest, moments, alive,
              out_mean, out_cov, scratch, vec):
     """Product of the forward-predicted and backward-filtered mixtures at a node into
     (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
@@ -994,26 +1044,31 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     with log weight log a_i + log b_j + log N(μ_i; ν_j, P_i + B_j) (`_pair_log_overlap`).
     The products' means and covariances (`_pair_product`) are computed only for the
     candidates the weight cut keeps (w/Σw ≥ weight_cut, and the largest; on lhcb-like
-    electrons 61 of 133). A candidate whose product has a non-positive variance is no
-    candidate (as when every product was computed first: it counts neither in the
-    largest weight nor in the sum), and the cut is made again without it. Equal to
-    computing every product first (02cf0ed) up to rounding."""
+    electrons 61 of 133), from each candidate's Cholesky factor, scales and substitution
+    kept from its weight (plu (≥ candidates, 5, 5), pvec (≥ candidates, 10)), and each
+    candidate's exp(log weight − largest) is taken once per cut. A candidate whose product has a
+    non-positive variance is no candidate (as when every product was computed first: it
+    counts neither in the largest weight nor in the sum), and the cut is made again
+    without it. Equal to computing every product first (02cf0ed) up to rounding."""
     ssum = scratch[0]
-    lu = scratch[2]
     x = scratch[3]
     y = vec[:5]
-    scale = vec[5:10]
     pair = nearest
     state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
+    scaled = moments[1]  # exp(log weight − largest) of each candidate
+    log_bw = moments[2]  # log b_j
+    for j in range(nb_):
+        log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
     n = 0
     for i in range(nf):
         if not fw[i] > 0.0:
             continue
         log_fw = math.log(fw[i])
         for j in range(nb_):
-            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, lu, scale)):
+            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, plu[n], pvec[n, 5:10])):
                 continue
-            pw[n] = log_fw + math.log(bw[j]) + _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y)
+            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(fmu, i, bmu, j, ssum, plu[n], pvec[n, 5:10],
+                                                          pvec[n, :5])
             if math.isnan(pw[n]):
                 continue
             pair[n] = i * nb_ + j
@@ -1030,17 +1085,16 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
             return 0
         total = 0.0
         for c in range(n):
+            scaled[c] = math.exp(pw[c] - largest)
             if state[c] >= 0.0:
-                total += math.exp(pw[c] - largest)
+                total += scaled[c]
         failed = False
         for c in range(n):
-            w = math.exp(pw[c] - largest)
+            w = scaled[c]
             if state[c] == 0.0 and (c == best or (w > 0.0 and w / total >= ctx.weight_cut)):
                 i = pair[c] // nb_
-                j = pair[c] % nb_
-                _pair_factor(fcov, i, bcov, j, ssum, lu, scale)
-                _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y)
-                if _pair_product(fmu, fcov, i, lu, scale, y, x, pmu[c], pcov[c]):
+                copy5(pvec[c, :5], y)  # pmu[c] is written over
+                if _pair_product(fmu, fcov, i, plu[c], pvec[c, 5:10], y, x, pmu[c], pcov[c]):
                     state[c] = 1.0
                 else:
                     state[c] = -1.0
@@ -1050,7 +1104,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     m = 0
     for c in range(n):
         if state[c] == 1.0:
-            w = math.exp(pw[c] - largest)
+            w = scaled[c]
             if c == best or (w > 0.0 and w / total >= ctx.weight_cut):
                 pw[m] = w
                 if m != c:
@@ -1060,7 +1114,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, nearest,
     return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, alive, out_mean, out_cov)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
     its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
@@ -1072,13 +1126,13 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
         copy5(mu[_largest(w, n)], out_mean)
         _second_moment(w, mu, cov, n, out_mean, out_cov)
     else:
-        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n), ctx.peak_window, out_mean, out_cov)
+        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n, moments[0]), ctx.peak_window, out_mean, out_cov)
         if ctx.output == OUTPUT_CORE:
             _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov)
     return n
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _keep_qop_mixture(w, mu, cov, n, out):
     """Store the q/p marginal (weight, mean [1/MeV], variance) of (w, mu, cov)[:n] in out
     (K, 3) when out has rows (K ≥ n), padding with zero weights."""
@@ -1095,7 +1149,7 @@ def _keep_qop_mixture(w, mu, cov, n, out):
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _decouple_qop(cov, nc):
     """A VELO-only prediction (QOP_PRIOR_ONLY): zero every component's q/p cross-covariances,
     so that the update that follows leaves its q/p (mean and variance) as it is. The hits
@@ -1108,7 +1162,7 @@ def _decouple_qop(cov, nc):
             cov[c, i, 4] = 0.0
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
     """A VELO-only node (QOP_PRIOR_ONLY): the smoothed state keeps x, y, tx, ty and takes the
     q/p mean and variance of the forward prediction (fw, fmu, fcov)[:nf] collapsed, with no
@@ -1136,7 +1190,7 @@ def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
     return 1
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
                buf, pbuf, count, nearest, moments, alive, scratch, bh, vec, out_state, out_cov, out_mix,
                stages, lo, out_mixture_cov, qop_prior_kind):
@@ -1150,7 +1204,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     components of the smoothed mixture at the first node)."""
     n = z.size
     w, mu, cov = buf[0], buf[1], buf[2]
-    pw, pmu, pcov = pbuf
+    pw, pmu, pcov, plu, pvec = pbuf
     mean = vec[15:20]
     cmat = scratch[5]
     chi2 = 0.0
@@ -1233,7 +1287,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             if nc == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
         if k < n - 1:
-            n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
+            n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov, plu, pvec,
                                nearest, moments, alive, out_state[k], out_cov[k], scratch, vec)
             if n_first == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
@@ -1307,7 +1361,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         ctx, True, np.zeros(n_tracks, dtype=np.int64), qop_mixture,
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros(cap), np.zeros((cap, 5)),
          np.zeros((cap, 5, 5))),
-        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5))),
+        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 10))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((5, cap)),
         np.zeros(cap, dtype=np.bool_),
@@ -1321,7 +1375,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         np.zeros(5), np.zeros(n_tracks, dtype=np.int64))
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_begin(f, t, seed):
     """STATUS_NO_SEED for a non-finite seed."""
     f.out_n_components[t] = 0
@@ -1331,7 +1385,7 @@ def _gsf_begin(f, t, seed):
     return STATUS_OK
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
     """`_fit_track` with the fitter's scratch; the component count into out_n_components.
     With bremsstrahlung modelled, a fit whose first-hit momentum came out more than
@@ -1366,7 +1420,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     return status, chi2
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_end(f, t, lo, hi, status, out_state, out_cov):
     """A failed track has NaN states and covariances. A fitted one's "core" and "mode"
     outputs get, at every node, the covariance of the whole mixture about the written
@@ -1380,7 +1434,7 @@ def _gsf_end(f, t, lo, hi, status, out_state, out_cov):
             widen_to_mixture(out_cov[k], f.mixture_cov[k])
 
 
-register_fitter(GsfFitter, _gsf_begin, _gsf_fit, _gsf_end)
+register_fitter(GsfFitter, _gsf_begin, _gsf_fit, _gsf_end, allocates=False)
 
 
 def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarray, seed_covs: np.ndarray,

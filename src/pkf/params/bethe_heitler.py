@@ -54,6 +54,8 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
+from pkf.jit import NO_REFCOUNT
+
 FORMAT = "pkf-bethe-heitler/1"
 LN2 = math.log(2.0)
 #: Below this path length [X0]: no bremsstrahlung loss at all (ACTS).
@@ -145,7 +147,7 @@ def load_bethe_heitler_mixture(path: str | Path | None = None) -> BetheHeitlerMi
 # ----------------------------------------------------------------------------------
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, **NO_REFCOUNT)
 def bethe_heitler_components(coefficients, t_min, t_max, t, out_weight, out_mean, out_var):
     """Mixture of z = E_f/E_i after t radiation lengths: writes weights, means and
     variances into the output arrays (length ≥ K) and returns the number of components
