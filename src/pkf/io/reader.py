@@ -501,8 +501,13 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                   f"is {value(c, row)}, must be {_range_text(lo, hi)} ({why})")
         for group, why in spec.nonzero_vectors:
             def zero_length(group=group):
-                parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
-                return np.sqrt(np.sum([x * x for x in parts], axis=0)) == 0  # also where the squares underflow
+                # the sum of squares is 0 (also where they underflow) in any order of the terms: as
+                # sqrt(sum) == 0, without stacking the columns (mc_hits qop: 0.1 s per 1,000 events)
+                total = None
+                for c in group:
+                    x = table.column(c).to_numpy(zero_copy_only=False)
+                    total = x * x if total is None else np.add(total, x * x, out=total)
+                return total == 0
 
             if len(group) == 1:
                 check(zero_length, group[0],
@@ -513,9 +518,9 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                       f"of length 0: must be > 0 ({why})")
         if spec.noise_truth is not None:  # before null_together: the clearer message for a particle's row
             truth_columns, particle = spec.noise_truth
-            of_particle = pc.not_equal(table.column(particle), 0)
-            for name in truth_columns:
-                check(lambda c=name: pc.and_(of_particle, pc.is_null(table.column(c))), name,
+            for name in (c for c in truth_columns if table.column(c).null_count):  # no null: no bad row
+                check(lambda c=name: pc.and_(pc.not_equal(table.column(particle), 0), pc.is_null(table.column(c))),
+                      name,
                       lambda row, p=particle: f"is null on a particle's hit ({p}={value(p, row)}): only noise "
                                               f"hits ({p} 0) may lack truth")
         for group in spec.null_together:
@@ -523,8 +528,15 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                 return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
 
             def partly_null(group=group):
-                nulls = nulls_of(group)
-                return np.logical_or.reduce(nulls) & ~np.logical_and.reduce(nulls)
+                """Rows where some column of the group is null and another is not (bitmaps, not arrays)."""
+                if not any(table.column(c).null_count for c in group):
+                    return np.zeros(0, dtype=bool)
+                first = pc.is_null(table.column(group[0]))
+                mask = None
+                for c in group[1:]:
+                    differs = pc.not_equal(pc.is_null(table.column(c)), first)
+                    mask = differs if mask is None else pc.or_(mask, differs)
+                return mask if mask is not None else np.zeros(0, dtype=bool)
 
             def not_together(row, group=group):
                 nulls = nulls_of(group)
