@@ -5,8 +5,9 @@ batch: every check of :mod:`pkf.io.reader` is applied to each batch, and the che
 that span rows (sorted by ``event_id``, unique ids) also across batch and file
 boundaries by carrying the rows of the last event into the next batch. The scan keeps
 only an index of events (first row of each event, 16 bytes per event) and a SHA-256
-of each file (computed on a thread beside the scan, :mod:`pkf.io.hashing`); :func:`read_rows` then reads any row range back, touching only the row
-groups that hold it. Messages name the file and the 0-based row within that file.
+of each file (computed on a thread beside the scan, :mod:`pkf.io.hashing`); :func:`read_rows`
+then reads any row range back, touching only the row groups that hold it. Messages name
+the file and the 0-based row within that file.
 """
 
 from __future__ import annotations
