@@ -156,3 +156,29 @@ def test_hit_truth_without_momentum(tmp_path):
     write_dataset(tmp_path, {"mc_hits": mc.set_column(8, mc.field(8), pa.array(qop, from_pandas=True))})
     raises_input_error(lambda: read_table(tmp_path, MC_HITS, name="mc_hits"),
                        "mc_hits.parquet: column 'qop': row 5 (event_id=0, hit_id=5) is 0.0, must not be 0")
+
+
+def test_compiled_layer_checks_find_the_rows_of_the_numpy_form():
+    """first_bad_layer_rows against the numpy form it replaced (layer, z with NaN, v/sigma_v nulls)."""
+    from pkf.io.area_kernel import first_bad_layer_rows
+
+    rng = np.random.default_rng(13)
+    layer_z, layer_kind = np.asarray(LAYER_Z, float), np.asarray(LAYER_KIND, np.int64)
+    for trial in range(200):
+        n = int(rng.integers(0, 60))
+        layer = rng.integers(0, layer_z.size, n)
+        z = layer_z[layer] + rng.choice([0.0, 0.0, 0.0, 5e-7, 2e-6, np.nan], n)
+        layer[rng.random(n) < 0.02] = rng.choice([-1, layer_z.size, 99])
+        strip = layer_kind[np.clip(layer, 0, layer_z.size - 1)] == 1
+        v_null = strip ^ (rng.random(n) < 0.02)
+        sv_null = strip ^ (rng.random(n) < 0.02)
+        valid = (layer >= 0) & (layer < layer_z.size)
+        index = np.where(valid, layer, 0)
+        kind_strip = layer_kind[index] == 1
+        expected = []
+        for bad in (~valid, valid & ~(np.abs(z - layer_z[index]) <= 1e-6),
+                    valid & (np.where(kind_strip, ~v_null, v_null) | np.where(kind_strip, ~sv_null, sv_null))):
+            expected.append(int(np.argmax(bad)) if bad.any() else -1)
+        out = np.empty(3, np.int64)
+        first_bad_layer_rows(layer, z, v_null, sv_null, layer_z, layer_kind, 1e-6, out)
+        assert out.tolist() == expected, trial

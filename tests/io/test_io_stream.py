@@ -120,3 +120,36 @@ def test_a_forked_worker_does_not_use_the_parents_open_readers(tmp_path):
 
 def _open_readers_in_child() -> int:
     return len(getattr(stream._READERS, "open", {}))
+
+
+def test_threaded_hashes_are_those_of_the_files_and_their_concatenation(tmp_path):
+    import hashlib
+
+    from pkf.io.hashing import FileHasher, file_sha256
+    from pkf.pipeline.inputs import files_content_hash
+
+    files = []
+    for k, size in enumerate([0, 3, (1 << 20) + 17, 0, 5000]):  # empty files first and inside, > one block
+        files.append(tmp_path / f"f{k}")
+        files[-1].write_bytes(np.random.default_rng(k).bytes(size))
+    for content in (hashlib.sha256(), None):
+        with FileHasher(content) as hasher:
+            for f in files:
+                hasher.submit(f)
+            own = [hasher.sha256(f) for f in files]
+        assert own == [file_sha256(f) for f in files]
+        if content is not None:
+            assert content.hexdigest()[:16] == files_content_hash(files)
+
+
+def test_a_failed_scan_leaves_no_hashing_behind(tmp_path):
+    import threading
+
+    d = tmp_path / "hits"
+    d.mkdir()
+    pq.write_table(_hits([1, 0]), d / "part-0.parquet")  # unsorted
+    with pytest.raises(InputError, match="must be sorted by event_id"):
+        _scan(d)
+    assert not [t for t in threading.enumerate() if t.name.startswith("pkf-sha256")]
+    pq.write_table(_hits([0, 1]), d / "part-0.parquet")
+    assert _scan(d).sha256 == (stream.file_sha256(d / "part-0.parquet"),)

@@ -336,11 +336,14 @@ def noise_truth_as_null(table: pa.Table, spec: TableSpec | None) -> pa.Table:
     columns, particle = spec.noise_truth
     if particle not in table.column_names or table.num_rows == 0:
         return table
-    noise = pc.equal(table.column(particle), 0)
+    noise = None
     for name in columns:
         if name not in table.column_names:
             continue
         col = table.column(name)
+        if not pc.any(pc.is_nan(col)).as_py():  # no NaN at all (pkf simulate writes null): nothing to replace
+            continue
+        noise = pc.equal(table.column(particle), 0) if noise is None else noise
         nan = pc.fill_null(pc.and_(noise, pc.is_nan(col)), False)
         if pc.any(nan).as_py():
             i = table.column_names.index(name)
@@ -404,7 +407,9 @@ def _key_codes(column: pa.ChunkedArray) -> np.ndarray:
     if pa.types.is_boolean(column.type):
         return pc.fill_null(column, False).to_numpy().astype(np.int64)
     if pa.types.is_integer(column.type):
-        return pc.fill_null(column, 0).to_numpy().astype(np.int64, copy=False)  # a null is reported as null
+        if column.null_count:
+            column = pc.fill_null(column, 0)  # a null is reported as null
+        return column.to_numpy().astype(np.int64, copy=False)
     return pc.dictionary_encode(column.combine_chunks()).indices.to_numpy().astype(np.int64, copy=False)
 
 
@@ -496,8 +501,13 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                   f"is {value(c, row)}, must be {_range_text(lo, hi)} ({why})")
         for group, why in spec.nonzero_vectors:
             def zero_length(group=group):
-                parts = [table.column(c).to_numpy(zero_copy_only=False) for c in group]
-                return np.sqrt(np.sum([x * x for x in parts], axis=0)) == 0  # also where the squares underflow
+                # the sum of squares is 0 (also where they underflow) in any order of the terms: as
+                # sqrt(sum) == 0, without stacking the columns (mc_hits qop: 0.1 s per 1,000 events)
+                total = None
+                for c in group:
+                    x = table.column(c).to_numpy(zero_copy_only=False)
+                    total = x * x if total is None else np.add(total, x * x, out=total)
+                return total == 0
 
             if len(group) == 1:
                 check(zero_length, group[0],
@@ -508,9 +518,9 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                       f"of length 0: must be > 0 ({why})")
         if spec.noise_truth is not None:  # before null_together: the clearer message for a particle's row
             truth_columns, particle = spec.noise_truth
-            of_particle = pc.not_equal(table.column(particle), 0)
-            for name in truth_columns:
-                check(lambda c=name: pc.and_(of_particle, pc.is_null(table.column(c))), name,
+            for name in (c for c in truth_columns if table.column(c).null_count):  # no null: no bad row
+                check(lambda c=name: pc.and_(pc.not_equal(table.column(particle), 0), pc.is_null(table.column(c))),
+                      name,
                       lambda row, p=particle: f"is null on a particle's hit ({p}={value(p, row)}): only noise "
                                               f"hits ({p} 0) may lack truth")
         for group in spec.null_together:
@@ -518,8 +528,15 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                 return [pc.is_null(table.column(c)).to_numpy(zero_copy_only=False) for c in group]
 
             def partly_null(group=group):
-                nulls = nulls_of(group)
-                return np.logical_or.reduce(nulls) & ~np.logical_and.reduce(nulls)
+                """Rows where some column of the group is null and another is not (bitmaps, not arrays)."""
+                if not any(table.column(c).null_count for c in group):
+                    return np.zeros(0, dtype=bool)
+                first = pc.is_null(table.column(group[0]))
+                mask = None
+                for c in group[1:]:
+                    differs = pc.not_equal(pc.is_null(table.column(c)), first)
+                    mask = differs if mask is None else pc.or_(mask, differs)
+                return mask if mask is not None else np.zeros(0, dtype=bool)
 
             def not_together(row, group=group):
                 nulls = nulls_of(group)
@@ -531,7 +548,8 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
                           _raise_partly_null(source, table, key, group, partly_null(), not_together))
 
     if "event_id" in table.column_names:
-        events = pc.fill_null(table.column("event_id"), 0).to_numpy()  # a null is reported as null
+        events = table.column("event_id")
+        events = (pc.fill_null(events, 0) if events.null_count else events).to_numpy()  # a null is reported as null
         check(lambda: np.r_[False, events[1:] < events[:-1]], "event_id",
               lambda row: f"comes after event_id={events[row - 1]}: rows must be sorted by event_id")
 
@@ -645,36 +663,36 @@ def validate_hit_layers(
         raise ValueError("layer_z and layer_kind must be 1-d arrays of the same length")
     if not np.all((layer_kind == 0) | (layer_kind == 1)):
         raise ValueError("layer_kind values must be 0 (pixel) or 1 (strip)")
+    from pkf.io.area_kernel import LAYER_CHECKS, first_bad_layer_rows
+
     n_layers = layer_z.size
     key = ("event_id", "hit_id")
-    layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)  # a null is reported as null
-    valid = (layer >= 0) & (layer < n_layers)
-    index = np.where(valid, layer, 0)  # rows of invalid layers are reported by the first check only
+    layer = _layer_values(table)
+    z = _float_values(table, "z")
+    v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
+    sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
+    first = np.empty(len(LAYER_CHECKS), np.int64)
+    first_bad_layer_rows(layer, z, v_null, sv_null, layer_z, layer_kind, float(z_tolerance), first)
 
     def layers():
-        row = _first_true(~valid)
-        if row is not None:
+        row = int(first[0])
+        if row >= 0:
             raise _row_error(source, table, row, "layer", key,
                              f"is {layer[row]}, not a layer of the geometry (valid: 0 to {n_layers - 1})")
 
     def z_values():
-        z = table.column("z").to_numpy()
-        expected = layer_z[index]
-        row = _first_true(valid & ~(np.abs(z - expected) <= z_tolerance))
-        if row is not None:
+        row = int(first[1])
+        if row >= 0:
+            expected = layer_z[layer[row]]
             raise _row_error(source, table, row, "z", key,
-                             f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected[row])!r} mm")
+                             f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected)!r} mm")
 
     def measured_coordinates():
-        strip = layer_kind[index] == 1
-        v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
-        sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
-        bad_v = valid & np.where(strip, ~v_null, v_null)
-        bad_sv = valid & np.where(strip, ~sv_null, sv_null)
-        row = _first_true(bad_v | bad_sv)
-        if row is not None:
-            column = "v" if bad_v[row] else "sigma_v"
-            if strip[row]:
+        row = int(first[2])
+        if row >= 0:
+            strip = layer_kind[layer[row]] == 1
+            column = "v" if v_null[row] != strip else "sigma_v"
+            if strip:
                 problem = f"is not null but layer {layer[row]} is a strip layer (v, sigma_v must be null)"
             else:
                 problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
@@ -703,7 +721,7 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
     from pkf.io.area_kernel import AREA_CHECKS, first_bad_area_rows
 
     key = ("event_id", "hit_id", "layer")
-    layer = pc.fill_null(table.column("layer"), -1).to_numpy().astype(np.int64)
+    layer = _layer_values(table)
     u = _float_values(table, "u")
     sigma_u = _float_values(table, "sigma_u")
     v = _float_values(table, "v")  # NaN where null (strips)
@@ -735,6 +753,14 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
         problem = (f"is {float(values[check][row])!r} mm, outside layer {lay}'s active area "
                    f"[{float(lo)!r}, {float(hi)!r}] mm {beyond}")
     raise _row_error(source, table, row, column, key, problem)
+
+
+def _layer_values(table: pa.Table) -> np.ndarray:
+    """The ``layer`` column as int64 (−1 where null: reported as null by the schema's rules)."""
+    layer = table.column("layer")
+    if layer.null_count:
+        layer = pc.fill_null(layer, -1)
+    return layer.to_numpy().astype(np.int64)
 
 
 def _float_values(table: pa.Table, name: str) -> np.ndarray:

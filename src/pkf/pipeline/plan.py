@@ -28,7 +28,8 @@ from pkf.io.reader import (
     validate_hit_layers,
 )
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES
-from pkf.io.stream import TableScan, find_and_scan, read_rows, scan_table
+from pkf.io.hashing import FileHasher
+from pkf.io.stream import TableScan, find_and_scan, read_rows, scan_table, with_sha256
 from pkf.pipeline.inputs import hit_layer_checks, resolve_geometry
 
 __all__ = ["DatasetPlan", "Partition", "plan_dataset"]
@@ -151,12 +152,15 @@ def plan_dataset(path: str | Path, events_per_batch: int, geometry: str | None =
         validate_hit_layers(table, **layer_checks, source=source)
 
     digest = hashlib.sha256()  # over every file, hits then particles then mc_hits (as content_hash)
-    tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers, digest)}
-    for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
-        if truth[name] is not None:
-            tables[name] = scan_table(truth[name], schema, name, content_digest=digest)
-    partitions = cut_partitions(tables["hits"], events_per_batch)
-    check_consistency(tables, partitions)
+    # the files are hashed on a thread while this one decodes and checks them (pkf.io.hashing)
+    with FileHasher(digest) as hasher:
+        tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers, hasher=hasher)}
+        for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
+            if truth[name] is not None:
+                tables[name] = scan_table(truth[name], schema, name, hasher=hasher)
+        partitions = cut_partitions(tables["hits"], events_per_batch)
+        check_consistency(tables, partitions)
+        tables = {name: with_sha256(scan, hasher) for name, scan in tables.items()}
     return DatasetPlan(path, meta or {}, found, tables, tuple(partitions), digest.hexdigest()[:16])
 
 
