@@ -44,3 +44,29 @@ def test_no_own_hit_on_the_layer_gives_nan():
     key, state, z, layer = _hits()
     out = particle_truth_at_hits(np.array([5, 4]), np.array([7, 9]), key, state, z, layer)
     assert np.all(np.isnan(out))
+
+
+def test_the_lookup_equals_a_brute_force_search():
+    """Random hits with repeated (particle, layer) pairs, repeated requests and missing pairs:
+    the first own row of each request, as a plain search finds it."""
+    rng = np.random.default_rng(3)
+    n = 5000
+    key = rng.integers(0, 300, n)  # 0: noise
+    layer = rng.integers(0, 40, n)
+    z = layer * 10.0 + rng.random(n)
+    state = rng.normal(size=(n, 5))
+    rows = rng.integers(0, n, 2000)
+    wanted = np.where(rng.random(rows.size) < 0.5, key[rows], rng.integers(1, 300, rows.size))
+    wanted = np.maximum(wanted, 1)
+    out = particle_truth_at_hits(rows, wanted, key, state, z, layer)
+    for i, (r, w) in enumerate(zip(rows, wanted)):
+        if key[r] == w:
+            np.testing.assert_array_equal(out[i], state[r])
+            continue
+        own = np.flatnonzero((key == w) & (layer == layer[r]))
+        if own.size == 0:
+            assert np.all(np.isnan(out[i]))
+            continue
+        expected = state[own[0]].copy()
+        expected[:2] += expected[2:4] * (z[r] - z[own[0]])
+        np.testing.assert_array_equal(out[i], expected)
