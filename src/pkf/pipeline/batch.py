@@ -448,8 +448,6 @@ def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_i
         rows.add("pulls", cols)
 
 
-
-
 def _scatter_rows(values: np.ndarray, select: np.ndarray) -> np.ndarray:
     """(select.size, k) array: `values` in the rows where `select`, NaN elsewhere."""
     out = np.full((select.size, values.shape[1]), np.nan)
