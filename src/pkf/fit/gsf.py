@@ -489,13 +489,13 @@ def _move_component(w, mu, cov, moments, nearest, src, dst):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _reduce(w, mu, cov, n, max_n, nearest, moments, alive):
+def _reduce(w, mu, cov, n, max_n, nearest, moments):
     """Merge the closest pairs (KL distance on q/p) until at most max_n components remain;
     returns the new count (the components stay compact in the first slots). `moments`
     (5, ≥ n) is scratch: the nearest distance of each component, its q/p mean, variance
     and inverse variance, and one row of distances, kept contiguous so that a distance
     costs no division and no strided load; `nearest` (≥ n) int: each component's
-    nearest neighbour; `alive` is not used (the mixture stays compact).
+    nearest neighbour (the mixture stays compact: every slot up to the count is live).
 
     Nearest-neighbour bookkeeping: every component knows its nearest neighbour; the pair
     merged is the component with the smallest such distance and its neighbour (the
@@ -879,7 +879,6 @@ class MixtureMaterial(NamedTuple):
     count: np.ndarray
     nearest: np.ndarray
     moments: np.ndarray
-    alive: np.ndarray
     scratch: np.ndarray
     bh: np.ndarray
 
@@ -904,7 +903,7 @@ def _mixture_interact(actor, ext, k, direction):
     n2 = _material(ctx, k, direction, w, mu, cov, actor.count[0], w2, mu2, cov2, actor.scratch[3],
                    actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2])
     n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
-    n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.moments, actor.alive)
+    n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.moments)
     for c in range(n2):
         _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
     actor.count[0] = n2
@@ -916,12 +915,12 @@ _propagate_mixture = propagator(_mixture_transport, _mixture_interact)
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, alive, scratch, bh):
+def _propagate(ctx, z_from, z_to, buf, n, count, nearest, moments, scratch, bh):
     """Transport the mixture buf[0:3] (n components) from z_from to z_to through the
     material planes in (min z, max z] (`MixtureMaterial`); buf = (w, mu, cov) × 2 working
     sets, count a 1-element scratch. Returns the new component count (0: failed)."""
     count[0] = n
-    actor = MixtureMaterial(ctx, buf, count, nearest, moments, alive, scratch, bh)
+    actor = MixtureMaterial(ctx, buf, count, nearest, moments, scratch, bh)
     if _propagate_mixture(ctx.ref, actor, z_from, z_to) != STATUS_OK:
         return 0
     return count[0]
@@ -1034,7 +1033,7 @@ def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pvec, nearest, moments, alive,
+def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pvec, nearest, moments,
              out_mean, out_cov, scratch, vec):
     """Product of the forward-predicted and backward-filtered mixtures at a node into
     (pw, pmu, pcov), reduced, and the output state (`_summarise`). Returns the product's
@@ -1111,15 +1110,15 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
                     copy5(pmu[c], pmu[m])
                     copy55(pcov[c], pcov[m])
                 m += 1
-    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, alive, out_mean, out_cov)
+    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov)
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _summarise(ctx, w, mu, cov, n, nearest, moments, alive, out_mean, out_cov):
+def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
     its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
     n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut)
-    n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments, alive)
+    n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments)
     if ctx.output == OUTPUT_MEAN:
         _collapse(w, mu, cov, n, out_mean, out_cov)
     elif ctx.output == OUTPUT_MAX_WEIGHT:
@@ -1192,7 +1191,7 @@ def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
-               buf, pbuf, count, nearest, moments, alive, scratch, bh, vec, out_state, out_cov, out_mix,
+               buf, pbuf, count, nearest, moments, scratch, bh, vec, out_state, out_cov, out_mix,
                stages, lo, out_mixture_cov, qop_prior_kind):
     """Forward GSF, backward GSF and smoothing of one track; the smoothed mixtures' q/p
     marginals into out_mix (nodes, K, 3) if it has rows, and the means and covariances of
@@ -1230,7 +1229,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     nc = 1
     for k in range(n):
         if k > 0:
-            nc = _propagate(ctx, z[k - 1], z[k], buf, nc, count, nearest, moments, alive, scratch, bh)
+            nc = _propagate(ctx, z[k - 1], z[k], buf, nc, count, nearest, moments, scratch, bh)
             if nc == 0:
                 return STATUS_EXTRAPOLATION_FAILED, chi2, 0
         if qop_prior_kind == QOP_PRIOR_ONLY:
@@ -1253,7 +1252,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     # ---- the last node: the forward filtered mixture is the smoothed one
     for c in range(nc):
         _copy_component(w, mu, cov, c, pw, pmu, pcov, c)
-    n_last = _summarise(ctx, pw, pmu, pcov, nc, nearest, moments, alive, out_state[n - 1], out_cov[n - 1])
+    n_last = _summarise(ctx, pw, pmu, pcov, nc, nearest, moments, out_state[n - 1], out_cov[n - 1])
     _second_moment(pw, pmu, pcov, n_last, out_state[n - 1], out_mixture_cov[n - 1])
     if keep:
         _keep_qop_mixture(pw, pmu, pcov, n_last, out_mix[n - 1])
@@ -1277,7 +1276,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
     n_first = n_last
     for k in range(n - 1, -1, -1):
         if k < n - 1:
-            nc = _propagate(ctx, z[k + 1], z[k], buf, nc, count, nearest, moments, alive, scratch, bh)
+            nc = _propagate(ctx, z[k + 1], z[k], buf, nc, count, nearest, moments, scratch, bh)
             if nc == 0:
                 return STATUS_EXTRAPOLATION_FAILED, chi2, 0
         if qop_prior_kind == QOP_PRIOR_ONLY:
@@ -1288,7 +1287,7 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
         if k < n - 1:
             n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov, plu, pvec,
-                               nearest, moments, alive, out_state[k], out_cov[k], scratch, vec)
+                               nearest, moments, out_state[k], out_cov[k], scratch, vec)
             if n_first == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
             if qop_prior_kind == QOP_PRIOR_ONLY:
@@ -1331,7 +1330,6 @@ class GsfFitter(NamedTuple):
     fwd_n: np.ndarray
     nearest: np.ndarray
     moments: np.ndarray
-    alive: np.ndarray
     scratch: np.ndarray
     bh: np.ndarray
     vec: np.ndarray
@@ -1364,7 +1362,6 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 10))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((5, cap)),
-        np.zeros(cap, dtype=np.bool_),
         np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
@@ -1396,7 +1393,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
     ctx = f.plain_ctx if f.single_gaussian[t] else f.ctx
     status, chi2, n_comp = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                       f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.moments,
-                                      f.alive, f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
+                                      f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
                                       f.mixture_cov, f.qop_prior_kind[t])
     f.out_passes[t] = 1
     radiated = abs(out_state[0, 4]) < (1.0 - RELINEARISE_QOP_CHANGE) * abs(seed[4])
@@ -1405,7 +1402,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
         f.relinearised_seed[4] = out_state[0, 4]
         status2, chi2_2, n_comp2 = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, f.relinearised_seed,
                                               seed_cov, f.fwd_w, f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf,
-                                              f.count, f.nearest, f.moments, f.alive, f.scratch, f.bh, f.vec,
+                                              f.count, f.nearest, f.moments, f.scratch, f.bh, f.vec,
                                               out_state, out_cov, out_mix, f.stages, lo, f.mixture_cov,
                                               f.qop_prior_kind[t])
         if status2 == STATUS_OK:
@@ -1414,7 +1411,7 @@ def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, 
         else:  # the first fit again (its outputs were overwritten)
             status, chi2, n_comp = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
                                               f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest,
-                                              f.moments, f.alive, f.scratch, f.bh, f.vec, out_state, out_cov,
+                                              f.moments, f.scratch, f.bh, f.vec, out_state, out_cov,
                                               out_mix, f.stages, lo, f.mixture_cov, f.qop_prior_kind[t])
     f.out_n_components[t] = n_comp
     return status, chi2

@@ -223,7 +223,6 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
     if has_mc:
         hit_particle, hit_truth = align_mc(data, ev)
         production = production_truth(data)
-        hit_mc = HitTruth(particle_key(ev, hit_particle), hit_truth, column(chunk, "z"), column(chunk, "layer", np.int64))
     fitter_names = [f.name for f, _ in ctx.fitters_ext]
     timing: dict = {}
     summary = {"events": _n_events(ev), "hits": int(chunk.num_rows), "candidates": 0,
@@ -256,7 +255,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
                             "hit_id": hit_id[cand_row]})
     summary["candidates"] = n_tracks
     if has_mc:
-        hit_key = hit_mc.key
+        hit_key = particle_key(ev, hit_particle)
         mc_id, fraction, ghost = match_tracks(track_of_hit, hit_key[cand_row], n_tracks)
         mc_particle = np.where(mc_id >= 0, mc_id % PARTICLE_KEY_BASE, -1)
         scifi_hits = np.bincount(track_of_hit, weights=geometry.layer_subdetector[layer[cand_row]]
@@ -272,6 +271,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
         velo_rec = reconstructible["velo"]
         summary["velo"] = pattern_counts(velo_id[np.bincount(track_of_hit[velo_hit], minlength=n_tracks) > 0],
                                          velo_rec, _true_momentum(production, velo_rec))
+        node_truth = _node_truth(batch, track_event, mc_particle, hit_key, hit_truth, column(chunk, "z"), layer)
     else:
         mc_particle = np.full(n_tracks, -1, dtype=np.int64)
         fraction = np.zeros(n_tracks)
@@ -298,7 +298,7 @@ def batch_rows(ctx: ReconstructionContext, data: Dataset) -> tuple[RowBlocks, di
             # under the electron hypothesis the parametrized q/p is no longer the production one
             # (it loses the expected radiation, pkf.fit.hypothesis): its truth is the local q/p
             at_production = fitter.qop_at_production and ctx.fit_options[fitter.name].kalman.hypothesis == "pion"
-            _add_pulls_rows(rows, fitter, batch, result, track_event, track_id, mc_particle, hit_mc,
+            _add_pulls_rows(rows, fitter, result, track_event, track_id, mc_particle, node_truth,
                             production, at_production)
     summary["timing"] = timing
     return rows, summary
@@ -386,24 +386,29 @@ def _track_states_rows(fitter, batch, result, track_event, track_id, hit_id):
     return cols
 
 
-@dataclass(frozen=True)
-class HitTruth:
-    """MC truth per hit row: particle key (`particle_key`; 0 for noise), mc_hit state
-    (n_hits, 5; NaN for noise), z [mm] and layer."""
+def _node_truth(batch: TrackBatch, track_event, mc_particle, hit_key, hit_truth, hit_z, layer) -> dict:
+    """Per location ``first_hit``/``last_hit``: the matched particle's true state at that node's
+    plane, (n_tracks, 5), NaN for unmatched tracks and where the particle has no hit on the
+    node's layer (`particle_truth_at_hits`: the node's mc_hit, or where the hit is another
+    particle's or noise the particle's own hit on that layer). Once per batch, for every fitter."""
+    matched = mc_particle > 0
+    out = {}
+    for location, nodes in (("first_hit", batch.offsets[:-1]), ("last_hit", batch.offsets[1:] - 1)):
+        truth = np.full((matched.size, 5), np.nan)
+        if batch.z.size:
+            truth[matched] = particle_truth_at_hits(batch.hit_row[nodes[matched]],
+                                                    particle_key(track_event[matched], mc_particle[matched]),
+                                                    hit_key, hit_truth, hit_z, layer)
+        out[location] = truth
+    return out
 
-    key: np.ndarray
-    state: np.ndarray
-    z: np.ndarray
-    layer: np.ndarray
 
-
-def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_id, mc_particle, hit_mc: HitTruth,
+def _add_pulls_rows(rows: RowBlocks, fitter, result, track_event, track_id, mc_particle, node_truth: dict,
                     production, at_production) -> None:
     """Residuals and pulls at each location for tracks matched to a particle.
 
     Truth at the first/last hit: the matched particle's state at that node's plane
-    (`particle_truth_at_hits`: the node's mc_hit, or where the hit is another particle's or noise
-    the particle's own hit on that layer; no row where it has none), q/p replaced by the
+    (`_node_truth`; no row where it has none), q/p replaced by the
     production q/p where the states carry it (`at_production`); at the beamline: the production
     vertex and momentum, straight-line extrapolated to the fitted z. (Taking the node's
     mc_hit whoever's it was gave the tracks with a foreign first hit the pulls of another
@@ -415,7 +420,6 @@ def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_i
     if production:
         pos = np.minimum(pos, production["key"].size - 1)
         has_particle = production["key"][pos] == pkey
-    node_index = {"first_hit": batch.offsets[:-1], "last_hit": batch.offsets[1:] - 1}
     for location, (z, state, cov) in result.locations.items():
         if location == "beamline":
             if not production:
@@ -427,10 +431,7 @@ def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_i
                                      production["vy"][q] + production["ty"][q] * dz,
                                      production["tx"][q], production["ty"][q], production["qop"][q]])
         else:
-            nodes = np.minimum(node_index[location], max(batch.z.size - 1, 0))
-            truth_all = (particle_truth_at_hits(batch.hit_row[nodes[ok]], pkey[ok], hit_mc.key, hit_mc.state,
-                                                hit_mc.z, hit_mc.layer) if batch.z.size else np.zeros((0, 5)))
-            truth_all = _scatter_rows(truth_all, ok)
+            truth_all = node_truth[location]
             sel = ok & np.all(np.isfinite(truth_all), axis=1)
             if at_production:
                 sel &= has_particle
@@ -446,10 +447,3 @@ def _add_pulls_rows(rows: RowBlocks, fitter, batch, result, track_event, track_i
             cols[f"res_{name}"] = res[:, i]
             cols[f"pull_{name}"] = res[:, i] / sigma[:, i]
         rows.add("pulls", cols)
-
-
-def _scatter_rows(values: np.ndarray, select: np.ndarray) -> np.ndarray:
-    """(select.size, k) array: `values` in the rows where `select`, NaN elsewhere."""
-    out = np.full((select.size, values.shape[1]), np.nan)
-    out[select] = values
-    return out

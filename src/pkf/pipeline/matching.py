@@ -169,8 +169,9 @@ def particle_truth_at_hits(rows: np.ndarray, wanted_key: np.ndarray, hit_key: np
         return truth
     truth = truth.copy()
     own = np.empty(foreign.size, dtype=np.int64)
-    _first_rows_of(hit_key, layer.astype(np.int64), wanted_key[foreign].astype(np.int64),
-                   layer[rows[foreign]].astype(np.int64), own)
+    layer = np.asarray(layer, dtype=np.int64)  # no copy when it is int64 already
+    _first_rows_of(np.asarray(hit_key, dtype=np.int64), layer, np.asarray(wanted_key[foreign], dtype=np.int64),
+                   layer[rows[foreign]], own)
     found = own >= 0
     own = np.maximum(own, 0)
     moved = hit_truth[own].copy()
