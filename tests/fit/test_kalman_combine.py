@@ -48,3 +48,41 @@ def test_lanes_give_bitwise_the_node_by_node_combination():
             ok_got = _combine_nodes(0, n, x_p, p, info, info_vec, got_s, got_c)
             assert ok_got == ok_want == (broken is None)
             assert want_s.tobytes() == got_s.tobytes() and want_c.tobytes() == got_c.tobytes()
+
+
+def test_solve5_is_bitwise_the_pivoting_loops():
+    """solve5 (straight-line, `pkf.physics.lanes_codegen`) gives bitwise the b and v of the
+    loops it writes out (`_solve_general`), on the backward filter's I + Y·Q (widely scaled:
+    every pivot order occurs) and on plain random matrices, and rejects, untouched, a
+    matrix with a zero or NaN pivot."""
+    from pkf.fit.kalman import _solve_general
+    from pkf.physics import lanes_codegen
+    from pkf.physics.linalg import solve5
+
+    assert lanes_codegen.current_block() == lanes_codegen.generated_block()
+    rng = np.random.default_rng(18)
+    pivots = set()
+    for trial in range(400):
+        if trial % 2:
+            _, q, info, _ = _nodes(rng, 1)
+            a = np.eye(5) + info[0] @ q[0]
+        else:
+            a = rng.normal(size=(5, 5))
+        b = rng.normal(size=(5, 5)) * 10.0 ** rng.integers(-6, 7, size=(5, 1))
+        v = rng.normal(size=5)
+        want_b, want_v, got_b, got_v = b.copy(), v.copy(), b.copy(), v.copy()
+        assert _solve_general(a.copy(), want_b, want_v)
+        a_in = a.copy()
+        assert solve5(a_in, got_b, got_v)
+        assert a_in.tobytes() == a.tobytes()
+        assert want_b.tobytes() == got_b.tobytes() and want_v.tobytes() == got_v.tobytes()
+        pivots.add(int(np.argmax(np.abs(a[:, 0]))))
+    assert pivots == {0, 1, 2, 3, 4}
+    for bad in (0.0, np.nan):
+        a = np.eye(5)
+        a[2, :] = 0.0
+        a[2, 2] = bad
+        b, v = np.ones((5, 5)), np.ones(5)
+        assert not solve5(a, b, v)
+        assert not _solve_general(a.copy(), np.ones((5, 5)), np.ones(5))
+        assert np.all(b == 1.0) and np.all(v == 1.0)

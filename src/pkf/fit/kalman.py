@@ -105,6 +105,7 @@ from pkf.physics.linalg import (
     matvec5,
     matvec5_t,
     sandwich,
+    solve5,
     symmetrise,
     transport_cov,
     zero5,
@@ -427,7 +428,7 @@ def _backward_information_filter(
                 s -= info[i, j] * shift[j]
             info_vec[i] = s
         copy55(info, tmp)
-        if not _solve_general(a, tmp, info_vec):  # M·Y, M·(y − Y·a)
+        if not solve5(a, tmp, info_vec):  # M·Y, M·(y − Y·a) (`_solve_general` written out)
             status = STATUS_NOT_POSITIVE_DEFINITE
             lowest = k
             break

@@ -1,4 +1,4 @@
-"""Source of the straight-line, one-lane L·D·Lᵀ inverse of `pkf.physics.linalg` (`invert_spd_ldl_lane`).
+"""Source of the straight-line kernels of `pkf.physics.linalg`: the one-lane L·D·Lᵀ inverse (`invert_spd_ldl_lane`) and the 5×5 solve (`solve5`).
 
 `invert_spd_ldl` is a nest of loops of constant trip counts, which LLVM unrolls into
 straight-line code. To run it for several matrices at once in SIMD lanes
@@ -10,6 +10,13 @@ operation by operation, the entries of the factor in scalars: the same operation
 same order as the loops of `invert_spd_ldl` (bitwise the same result; the test
 ``tests/physics/test_physics_linalg.py`` checks both the numbers and that the code in
 `linalg.py` is exactly what this module writes).
+
+`solve5` is the Gaussian elimination with partial pivoting of
+`pkf.fit.kalman._solve_general` written out with every entry in a scalar and the row
+swaps as conditional swaps of scalars: the rolled loops kept the matrices in memory, each
+pivot's elimination waiting on the stores of the last (the backward filter's step was
+latency-bound on them). Same operations in the same order, so bitwise the same result (a
+test checks it, with and without row swaps).
 
     python -m pkf.physics.lanes_codegen           # prints the block
     python -m pkf.physics.lanes_codegen --write   # replaces it in linalg.py
@@ -77,9 +84,75 @@ def invert_spd_ldl_lane_source() -> str:
     return "\n".join(lines) + "\n"
 
 
+_SOLVE_DOC = '''    """b ← a⁻¹·b (5×5) and v ← a⁻¹·v (5) for a general 5×5 matrix a: the Gaussian
+    elimination with partial pivoting of `pkf.fit.kalman._solve_general` (bitwise its b and
+    v), written out as straight-line code on scalars (`pkf.physics.lanes_codegen`): each
+    column's pivot search, the swap of the pivot row into place (entries of a left of the
+    column are dead and not swapped), the elimination, then the back substitution. a is
+    read only. Returns False, with b and v untouched, if a pivot is zero or not finite
+    (`_solve_general` returns False there too, having written part of them). Compile the
+    caller with error_model="numpy" (a rejected pivot may divide by zero)."""'''
+
+
+def solve5_source() -> str:
+    """Source of ``solve5(a, b, v)``: the loops of `_solve_general` unrolled, each
+    statement the one the loops execute at that point, the row swaps as conditional
+    swaps of scalars."""
+    lines = ['@nb.njit(cache=True, inline="always", error_model="numpy")', "def solve5(a, b, v):", _SOLVE_DOC]
+
+    def emit(statement: str) -> None:
+        lines.append("    " + statement)
+
+    for i in range(5):
+        emit(", ".join(f"a{i}{j}" for j in range(5)) + " = " + ", ".join(f"a[{i}, {j}]" for j in range(5)))
+    for i in range(5):
+        emit(", ".join(f"b{i}{j}" for j in range(5)) + " = " + ", ".join(f"b[{i}, {j}]" for j in range(5)))
+    emit(", ".join(f"v{i}" for i in range(5)) + " = " + ", ".join(f"v[{i}]" for i in range(5)))
+    emit("bad = False")
+    for c in range(5):
+        emit(f"best = abs(a{c}{c})")
+        emit(f"pivot = {c}")
+        for r in range(c + 1, 5):
+            emit(f"if abs(a{r}{c}) > best:")
+            emit(f"    best = abs(a{r}{c})")
+            emit(f"    pivot = {r}")
+        emit("bad = bad | (not (best > 0.0 and best < math.inf))")
+        for r in range(c + 1, 5):
+            emit(f"if pivot == {r}:")
+            pairs = [(f"a{c}{j}", f"a{r}{j}") for j in range(c, 5)]
+            pairs += [(f"b{c}{j}", f"b{r}{j}") for j in range(5)] + [(f"v{c}", f"v{r}")]
+            for x, y in pairs:
+                emit(f"    {x}, {y} = {y}, {x}")
+        emit(f"a{c}{c} = 1.0 / a{c}{c}")
+        for r in range(c + 1, 5):
+            emit(f"f = a{r}{c} * a{c}{c}")
+            for j in range(c + 1, 5):
+                emit(f"a{r}{j} -= f * a{c}{j}")
+            for j in range(5):
+                emit(f"b{r}{j} -= f * b{c}{j}")
+            emit(f"v{r} -= f * v{c}")
+    emit("if bad:")
+    emit("    return False")
+    for i in range(4, -1, -1):
+        for j in range(5):
+            emit(f"t = b{i}{j}")
+            for k in range(i + 1, 5):
+                emit(f"t -= a{i}{k} * b{k}{j}")
+            emit(f"b{i}{j} = t * a{i}{i}")
+        emit(f"t = v{i}")
+        for k in range(i + 1, 5):
+            emit(f"t -= a{i}{k} * v{k}")
+        emit(f"v{i} = t * a{i}{i}")
+    for i in range(5):
+        emit(", ".join(f"b[{i}, {j}]" for j in range(5)) + " = " + ", ".join(f"b{i}{j}" for j in range(5)))
+    emit(", ".join(f"v[{i}]" for i in range(5)) + " = " + ", ".join(f"v{i}" for i in range(5)))
+    emit("return True")
+    return "\n".join(lines) + "\n"
+
+
 def generated_block() -> str:
     """The whole generated block of `linalg.py`, markers included."""
-    return BEGIN + "\n" + invert_spd_ldl_lane_source() + "\n\n" + END + "\n"
+    return BEGIN + "\n" + invert_spd_ldl_lane_source() + "\n\n" + solve5_source() + "\n\n" + END + "\n"
 
 
 def linalg_path() -> Path:
