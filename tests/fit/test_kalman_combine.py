@@ -30,10 +30,22 @@ def _nodes(rng, n):
     return rng.normal(size=(n, 5)), p, info, rng.normal(size=(n, 5)) * 1e3
 
 
+def _in_lanes(a):
+    """Per-node rows (n, ...) in the core's lanes layout (blocks, ..., LANES); the lanes past
+    the last node NaN (`_combine_nodes` must discard them)."""
+    from pkf.physics.linalg import LANES
+
+    n = a.shape[0]
+    blocks = -(-n // LANES)
+    rows = np.full((blocks * LANES,) + a.shape[1:], np.nan)
+    rows[:n] = a
+    return np.ascontiguousarray(np.moveaxis(rows.reshape((blocks, LANES) + a.shape[1:]), 1, -1))
+
+
 def test_lanes_give_bitwise_the_node_by_node_combination():
-    """Tracks of 1…30 nodes (whole and partial lanes): every output bitwise equal; with a
-    node that is not positive definite, the same nodes written (those downstream of it) and
-    the same failure."""
+    """Tracks of 1…30 nodes (whole and partial blocks of lanes): every output bitwise equal;
+    with a node that is not positive definite, the same nodes written (those downstream of
+    it) and the same failure."""
     from pkf.fit.kalman import _combine_nodes
 
     rng = np.random.default_rng(5)
@@ -45,7 +57,9 @@ def test_lanes_give_bitwise_the_node_by_node_combination():
             want_s, want_c = np.full((n, 5), 7.0), np.full((n, 5, 5), 7.0)
             got_s, got_c = want_s.copy(), want_c.copy()
             ok_want = _combine_one_by_one(0, n, x_p, p, info, info_vec, want_s, want_c)
-            ok_got = _combine_nodes(0, n, x_p, p, info, info_vec, got_s, got_c)
+            ok_got = _combine_nodes(
+                0, n, _in_lanes(x_p), _in_lanes(p), _in_lanes(info), _in_lanes(info_vec), got_s, got_c
+            )
             assert ok_got == ok_want == (broken is None)
             assert want_s.tobytes() == got_s.tobytes() and want_c.tobytes() == got_c.tobytes()
 

@@ -282,11 +282,14 @@ def _fit_once(
     perm,
     info_at,
     info_vec_at,
+    pred_lanes,
+    pred_cov_lanes,
 ):
     """One forward + backward + combination pass over the n nodes of one track.
 
-    Arrays pred…noise/ref and info_at/info_vec_at are per-node scratch (first n rows
-    used); out_state/out_cov receive the optimal states. Returns (status code, track χ²).
+    Arrays pred…noise/ref are per-node scratch (first n rows used), info_at/info_vec_at/
+    pred_lanes/pred_cov_lanes per-node scratch in lanes (`_combine_nodes`); out_state/out_cov
+    receive the optimal states. Returns (status code, track χ²).
     """
     n = z.size
     lin = stack_array((5,))  # scratch on the stack (see `_backward_information_filter`)
@@ -325,6 +328,9 @@ def _fit_once(
         else:
             copy5(state, pred[0])
         copy55(cov, pred_cov[k])
+        if smoother == SMOOTHER_WEIGHTED_MEAN:  # the combination's inputs, already in lanes
+            _to_lanes5(state, pred_lanes, k)
+            _to_lanes55(cov, pred_cov_lanes, k)
         if active[k]:
             for j in range(n_meas[k]):
                 increment, s = scalar_update(state, cov, hx[k, j], hy[k, j], m[k, j], sigma[k, j] ** 2)
@@ -352,14 +358,13 @@ def _fit_once(
             sigma,
             active,
             pred,
-            pred_cov,
+            pred_lanes,
+            pred_cov_lanes,
             filt,
             jac,
             noise,
             out_state,
             out_cov,
-            mats,
-            vec5,
             info_at,
             info_vec_at,
         )
@@ -376,14 +381,13 @@ def _backward_information_filter(
     sigma,
     active,
     pred,
-    pred_cov,
+    pred_lanes,
+    pred_cov_lanes,
     filt,
     jac,
     noise,
     out_state,
     out_cov,
-    mats,
-    vec5,
     info_at,
     info_vec_at,
 ):
@@ -391,7 +395,8 @@ def _backward_information_filter(
     with y relative to the forward prediction at each node (δ = x − x_p).
 
     Two passes: the filter, downstream → upstream, keeps each node's (Y, y) in
-    info_at/info_vec_at; then `_combine_nodes` forms the weighted means, LANES nodes at a
+    info_at/info_vec_at (in lanes, `_to_lanes55`); then `_combine_nodes` forms the weighted
+    means of them and the forward predictions (pred_lanes, pred_cov_lanes), LANES nodes at a
     time. Bitwise the states of one pass that combines at each node before moving on (the
     same operations on the same numbers), and the same outputs on failure: the nodes
     downstream of the first failure (in the filter's order) are written, no others."""
@@ -410,8 +415,8 @@ def _backward_information_filter(
     for k in range(n - 1, -1, -1):
         if active[k]:  # the residuals m − h·x_p enter
             add_node_information(info, info_vec, n_meas[k], hx[k], hy[k], m[k], sigma[k], pred[k])
-        copy55(info, info_at[k])
-        copy5(info_vec, info_vec_at[k])
+        _to_lanes55(info, info_at, k)
+        _to_lanes5(info_vec, info_vec_at, k)
         if k == 0:
             break
         # propagate to node k−1: δ_k = F·δ_k−1 + a + w with a = F·(x_p,k−1 − x_f,k−1) (as
@@ -434,56 +439,82 @@ def _backward_information_filter(
             break
         # Y ← Fᵀ·(M·Y)·F, y ← Fᵀ·M·(y − Y·a)
         transport_information(jac[k], tmp, info_vec, info, tmp2, vec5)
-    if not _combine_nodes(lowest, n, pred, pred_cov, info_at, info_vec_at, out_state, out_cov):
+    if not _combine_nodes(lowest, n, pred_lanes, pred_cov_lanes, info_at, info_vec_at, out_state, out_cov):
         return STATUS_NOT_POSITIVE_DEFINITE
     return status
+
+
+@nb.njit(cache=True, inline="always")
+def _to_lanes5(v, lanes, k):
+    """Node k's 5-vector v into lanes (blocks, 5, LANES): block k // LANES, lane k % LANES."""
+    blk = k // LANES
+    lane = k - blk * LANES
+    for i in range(5):
+        lanes[blk, i, lane] = v[i]
+
+
+@nb.njit(cache=True, inline="always")
+def _to_lanes55(a, lanes, k):
+    """Node k's 5×5 matrix a into lanes (blocks, 5, 5, LANES): block k // LANES, lane k % LANES."""
+    blk = k // LANES
+    lane = k - blk * LANES
+    for i in range(5):
+        for j in range(5):
+            lanes[blk, i, j, lane] = a[i, j]
+
+
+def lanes_scratch(n_nodes: int, matrix: bool) -> np.ndarray:
+    """Zeroed per-node scratch in lanes for `n_nodes` nodes: (blocks, 5, 5, LANES) for
+    matrices, (blocks, 5, LANES) for vectors (`_to_lanes5`, `_to_lanes55`). Zeroed, so that
+    the lanes of a block past a track's nodes hold numbers (`_combine_nodes` computes
+    them and discards them)."""
+    blocks = max(1, -(-n_nodes // LANES))
+    return np.zeros((blocks, 5, 5, LANES) if matrix else (blocks, 5, LANES))
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _combine_nodes(lo, hi, x_p, p, info, info_vec, out_state, out_cov):
     """The weighted mean of the forward prediction (x_p, P) and the backward filtered
     information (Y, y) on δ = x − x_p at nodes hi−1 … lo (paper §3, in information form):
-    C = (P⁻¹ + Y)⁻¹ and x = x_p + C·y, LANES nodes at a time (lane l: node base + l) with
-    the vectorised L·D·Lᵀ inverses (`invert_spd_ldl_lane`), each lane bitwise what
-    `invert_spd_ldl` gives. Writes out_state/out_cov downstream → upstream, and stops at the
-    first node where P or P⁻¹ + Y is not positive definite (nothing written there) or C has
-    a diagonal element ≤ 0 (written there): returns False then."""
-    p_lanes = stack_array((5, 5, LANES))
-    y_lanes = stack_array((5, 5, LANES))
+    C = (P⁻¹ + Y)⁻¹ and x = x_p + C·y. The inputs are in lanes (`_to_lanes5`,
+    `_to_lanes55`: node k in block k // LANES, lane k % LANES), written there by the
+    filters, so a block's LANES nodes go through the vectorised L·D·Lᵀ inverses
+    (`invert_spd_ldl_lane`, each lane bitwise what `invert_spd_ldl` gives) without
+    gathering them first (the gathers were ~20 ns per node); every lane of a block is
+    computed (a full SIMD loop), those outside lo…hi−1 discarded. Writes out_state/out_cov
+    downstream → upstream, and stops at the first node where P or P⁻¹ + Y is not positive
+    definite (nothing written there) or C has a diagonal element ≤ 0 (written there):
+    returns False then."""
+    a_lanes = stack_array((5, 5, LANES))
     c_lanes = stack_array((5, 5, LANES))
     x_lanes = stack_array((5, LANES))
-    v_lanes = stack_array((5, LANES))
     bad_pivot = stack_array((LANES,))
     bad_diag = stack_array((LANES,))
     top = hi
     while top > lo:
-        base = max(lo, top - LANES)
-        count = top - base
-        for l in range(count):
-            k = base + l
-            for i in range(5):
-                x_lanes[i, l] = x_p[k, i]
-                v_lanes[i, l] = info_vec[k, i]
-                for j in range(5):
-                    p_lanes[i, j, l] = p[k, i, j]
-                    y_lanes[i, j, l] = info[k, i, j]
-        for l in range(min(count, LANES)):  # one SIMD loop over the lanes (count ≤ LANES: no overlap)
+        blk = (top - 1) // LANES
+        base = blk * LANES
+        p_blk = p[blk]
+        y_blk = info[blk]
+        x_blk = x_p[blk]
+        v_blk = info_vec[blk]
+        for l in range(LANES):  # one SIMD loop over the lanes
             bad_pivot[l] = 0.0
-            invert_spd_ldl_lane(p_lanes, c_lanes, bad_pivot, l)  # P⁻¹
+            invert_spd_ldl_lane(p_blk, c_lanes, bad_pivot, l)  # P⁻¹
             for i in range(5):
                 for j in range(5):
-                    p_lanes[i, j, l] = c_lanes[i, j, l] + y_lanes[i, j, l]
-            invert_spd_ldl_lane(p_lanes, c_lanes, bad_pivot, l)  # C = (P⁻¹ + Y)⁻¹
+                    a_lanes[i, j, l] = c_lanes[i, j, l] + y_blk[i, j, l]
+            invert_spd_ldl_lane(a_lanes, c_lanes, bad_pivot, l)  # C = (P⁻¹ + Y)⁻¹
             bad = 0.0
             for i in range(5):  # x = x_p + C·y (`add_matvec5`); diag(C) > 0
-                s = x_lanes[i, l]
+                s = x_blk[i, l]
                 for k in range(5):
-                    s += c_lanes[i, k, l] * v_lanes[k, l]
+                    s += c_lanes[i, k, l] * v_blk[k, l]
                 x_lanes[i, l] = s
                 bad = bad if c_lanes[i, i, l] > 0.0 else 1.0
             bad_diag[l] = bad
-        for l in range(count - 1, -1, -1):
-            k = base + l
+        for k in range(top - 1, max(lo, base) - 1, -1):
+            l = k - base
             if bad_pivot[l] != 0.0:
                 return False
             for i in range(5):
@@ -541,7 +572,8 @@ class KalmanFitter(NamedTuple):
     context, the number of passes (the 2nd and later linearise around the previous
     optimal states), the combination (SMOOTHER_*), per-node scratch for the batch's
     longest track (`kalman_fitter` allocates it; info/info_vec: the backward filter's
-    (Y, y) at each node), and `stages`, where each track's predicted and filtered states
+    (Y, y) at each node, pred_lanes/pred_cov_lanes the forward predictions, all in lanes
+    for `_combine_nodes`), and `stages`, where each track's predicted and filtered states
     go after its last fit (zero rows: nowhere)."""
 
     ext: tuple
@@ -562,6 +594,8 @@ class KalmanFitter(NamedTuple):
     stages: NodeStages
     info: np.ndarray
     info_vec: np.ndarray
+    pred_lanes: np.ndarray
+    pred_cov_lanes: np.ndarray
 
 
 def kalman_fitter(
@@ -586,8 +620,10 @@ def kalman_fitter(
         np.empty(25),
         np.empty(5, dtype=np.int64),
         node_stages(0) if stages is None else stages,
-        np.empty((n_nodes, 5, 5)),
-        np.empty((n_nodes, 5)),
+        lanes_scratch(n_nodes, True),
+        lanes_scratch(n_nodes, False),
+        lanes_scratch(n_nodes, False),
+        lanes_scratch(n_nodes, True),
     )
 
 
@@ -632,6 +668,8 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
             f.perm,
             f.info,
             f.info_vec,
+            f.pred_lanes,
+            f.pred_cov_lanes,
         )
         if status != STATUS_OK:
             break

@@ -94,6 +94,10 @@ class ParameterSet:
             meta, coef = self.ut_to_scifi.as_arrays()
         else:
             meta, coef = np.zeros(META_SIZE), np.zeros((4, 1, 1, 1))
+        # The same coef[u, i, j, col] as a view of storage ordered (i, j, u, col): the cells
+        # one evaluation reads (`ut_to_scifi_extrapolate`, six neighbours) are then a few
+        # contiguous runs rather than one run per output u and cell; same numbers read.
+        coef = np.ascontiguousarray(coef.transpose(1, 2, 0, 3)).transpose(2, 0, 1, 3)
         field = geometry.reconstruction_field() if self.ut_to_scifi is not None else None
         fallback = (int(field.kind), field.params, field.grid) if field is not None else ()
         return ParametrizedExtrapolator(
