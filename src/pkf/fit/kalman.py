@@ -26,8 +26,10 @@ Per iteration:
    backward filtered state (paper §3): C = (P⁻¹ + Y)⁻¹, x = x_p + C·y (y on δ), with
    L·D·Lᵀ inverses; the backward filter keeps each node's (Y, y), and the weighted means
    are formed afterwards, LANES = 8 nodes at a time in SIMD lanes (`_combine_nodes`,
-   `invert_spd_ldl_lane`: lane by lane bitwise `invert_spd_ldl`). The backward step's
-   M·Y and M·(y − Y·a) come from one solve with I + Y·Q (`_solve_general`).
+   `invert_spd_ldl_lane`: lane by lane bitwise `invert_spd_ldl`); the filters write its
+   inputs straight into lanes (`_to_lanes55`). The backward step's M·Y and M·(y − Y·a)
+   come from one solve with I + Y·Q (`_solve_general`, run as its straight-line form
+   `pkf.physics.linalg.solve5`).
    `SMOOTHER_RTS` computes the same states with the Rauch–Tung–Striebel smoother
    instead; a test checks they agree.
 4. Track χ² = the sum of the forward filter's increments r_k|k−1ᵀ S_k⁻¹ r_k|k−1 (paper
@@ -69,6 +71,26 @@ would remove it). Both filters are chains of dependent steps, each waiting for t
 (the update's division, the elimination's five pivots): one track at a time is
 latency-bound, and the backward step in SIMD lanes over the columns of its products
 gained only 5 % (not kept). The next step is several tracks in SIMD lanes at once.
+
+Issue 18.1 (same protocol, `fit_core`'s loop in two long-lived processes, main cc35fa3
+and this code alternating, 4 rounds of min-of-5, machine under load 4–5 on 2 cores),
+minimum bias: full fit 433–450 → 398–420 ns/node (×0.92–0.94; ×0.86–0.90 in quieter
+runs), forward filter ×0.97–0.99, backward + combination 215 → 170–187; the telescope
+of benchmarks/vs_acts.py (2,000 tracks of 10 nodes), the kernel alone 4.36 → 3.84 µs per
+track, `fit_batch` 4.93 → 4.44. Every output (states, covariances, node and track χ²,
+status; parametrized and reference) bitwise what it was. What did it: the solve with
+I + Y·Q as straight-line code on scalars (`solve5`; the rolled loops kept the matrices
+in memory, each pivot's elimination waiting on the stores of the last: backward +
+combination −25 ns/node), the combination's inputs written into lanes by the filters
+instead of gathered (−20 ns/node with the next), the UT→SciFi table stored cell-major
+(`ParameterSet.extrapolator`: its share of the CPU samples 10.3 → 7.6 %), and the forward
+filter's per-node covariance copies skipped when nothing reads them (−2 %). Where the
+~400 ns/node go now (perf, samples mapped to the compiled functions): backward filter
+30 %, forward filter 18–20 %, combination 15–18 % (of which ~6 points are the stores of
+the output covariances: 200 bytes per node into a 51 MB array, write-allocate misses;
+in the forward-only loop the same copy is 11 %), extrapolation 27 % (parametrized_step
+10 %, layer steps 6 %, the UT→SciFi table 7.6 %, its RK4 fallback 3 %). A branch-free
+bisection in `search_sorted` (1–2 % of the samples) measured nothing (not kept).
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
@@ -284,14 +306,19 @@ def _fit_once(
     info_vec_at,
     pred_lanes,
     pred_cov_lanes,
+    keep_covs,
 ):
     """One forward + backward + combination pass over the n nodes of one track.
 
     Arrays pred…noise/ref are per-node scratch (first n rows used), info_at/info_vec_at/
     pred_lanes/pred_cov_lanes per-node scratch in lanes (`_combine_nodes`); out_state/out_cov
-    receive the optimal states. Returns (status code, track χ²).
+    receive the optimal states. pred_cov/filt_cov are written only if keep_covs or the
+    smoother needs them (the weighted mean does not: it takes pred_cov_lanes). Returns
+    (status code, track χ²).
     """
     n = z.size
+    lanes = smoother == SMOOTHER_WEIGHTED_MEAN
+    keep_covs = keep_covs or not lanes
     lin = stack_array((5,))  # scratch on the stack (see `_backward_information_filter`)
     chi2 = 0.0
     tmp = stack_array((5, 5))
@@ -327,8 +354,9 @@ def _fit_once(
             copy5(pred[k], state)
         else:
             copy5(state, pred[0])
-        copy55(cov, pred_cov[k])
-        if smoother == SMOOTHER_WEIGHTED_MEAN:  # the combination's inputs, already in lanes
+        if keep_covs:
+            copy55(cov, pred_cov[k])
+        if lanes:  # the combination's inputs, already in lanes
             _to_lanes5(state, pred_lanes, k)
             _to_lanes55(cov, pred_cov_lanes, k)
         if active[k]:
@@ -340,7 +368,8 @@ def _fit_once(
                     return STATUS_NOT_POSITIVE_DEFINITE, chi2
                 chi2 += increment
         copy5(state, filt[k])
-        copy55(cov, filt_cov[k])
+        if keep_covs:
+            copy55(cov, filt_cov[k])
     if smoother == SMOOTHER_NONE:
         for k in range(n):
             copy5(filt[k], out_state[k])
@@ -670,6 +699,7 @@ def _kalman_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_co
             f.info_vec,
             f.pred_lanes,
             f.pred_cov_lanes,
+            f.stages.predicted.shape[0] > 0,
         )
         if status != STATUS_OK:
             break
