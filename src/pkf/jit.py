@@ -31,7 +31,7 @@ from numba.core import options as _numba_options
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
 
-__all__ = ["NO_REFCOUNT", "stack_array"]
+__all__ = ["NO_REFCOUNT", "prefetch_write", "stack_array"]
 
 #: keyword arguments of ``numba.njit`` for non-allocating kernels (empty if unsupported)
 NO_REFCOUNT: dict = {"_nrt": False} if hasattr(getattr(_numba_options, "DefaultOptions", None), "_nrt") else {}
@@ -66,6 +66,33 @@ def stack_array(typingctx, shape):
         return array._getvalue()
 
     return array_type(shape), codegen
+
+
+def _prefetch_codegen(write: int):
+    def codegen(context, builder, signature, args):
+        data = make_array(signature.args[0])(context, builder, args[0]).data
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        offset = context.cast(builder, args[1], signature.args[1], types.intp)
+        address = builder.gep(builder.bitcast(data, i8p), [offset])
+        function_type = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        prefetch = cgutils.get_or_insert_function(builder.module, function_type, "llvm.prefetch.p0")
+        builder.call(prefetch, [address, i32(write), i32(3), i32(1)])  # keep in all levels, data
+        return context.get_dummy_value()
+
+    return codegen
+
+
+@intrinsic
+def prefetch_write(typingctx, array, byte_offset):
+    """Hint the cache to fetch, for writing, the line at `byte_offset` bytes from the start
+    of `array`'s data (LLVM's prefetch intrinsic, x86 ``prefetchw``). A hint only: no
+    effect on any value, no fault for an address outside the array. The Kalman
+    combination issues it for the output rows of its next block of nodes, so that their
+    write-allocate misses overlap its arithmetic instead of stalling the stores."""
+    if not isinstance(array, types.Array) or not isinstance(byte_offset, types.Integer):
+        return None
+    return types.void(array, byte_offset), _prefetch_codegen(1)
 
 
 # ----------------------------------------------------------------------------------

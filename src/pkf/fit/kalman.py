@@ -73,24 +73,28 @@ latency-bound, and the backward step in SIMD lanes over the columns of its produ
 gained only 5 % (not kept). The next step is several tracks in SIMD lanes at once.
 
 Issue 18.1 (same protocol, `fit_core`'s loop in two long-lived processes, main cc35fa3
-and this code alternating, 4 rounds of min-of-5, machine under load 4–5 on 2 cores),
-minimum bias: full fit 433–450 → 398–420 ns/node (×0.92–0.94; ×0.86–0.90 in quieter
-runs), forward filter ×0.97–0.99, backward + combination 215 → 170–187; the telescope
-of benchmarks/vs_acts.py (2,000 tracks of 10 nodes), the kernel alone 4.36 → 3.84 µs per
-track, `fit_batch` 4.93 → 4.44. Every output (states, covariances, node and track χ²,
+and this code alternating, 4 rounds of min-of-5, the machine under load 4–5 on 2 cores),
+minimum bias: full fit 475 → 406 ns/node (×0.84–0.86 in each round), forward filter
+254 → 241 (×0.94–0.97), backward + combination 226 → 166; the reference fitter 3,614 →
+3,117 (×0.85–0.87; reference/parametrized 7.6 → 7.7). The telescope of
+benchmarks/vs_acts.py (2,000 tracks of 10 nodes): `fit_batch` 5.06 → 4.45 µs per track,
+the kernel alone 4.37 → 3.75. Every output (states, covariances, node and track χ²,
 status; parametrized and reference) bitwise what it was. What did it: the solve with
 I + Y·Q as straight-line code on scalars (`solve5`; the rolled loops kept the matrices
 in memory, each pivot's elimination waiting on the stores of the last: backward +
 combination −25 ns/node), the combination's inputs written into lanes by the filters
 instead of gathered (−20 ns/node with the next), the UT→SciFi table stored cell-major
-(`ParameterSet.extrapolator`: its share of the CPU samples 10.3 → 7.6 %), and the forward
-filter's per-node covariance copies skipped when nothing reads them (−2 %). Where the
-~400 ns/node go now (perf, samples mapped to the compiled functions): backward filter
-30 %, forward filter 18–20 %, combination 15–18 % (of which ~6 points are the stores of
-the output covariances: 200 bytes per node into a 51 MB array, write-allocate misses;
-in the forward-only loop the same copy is 11 %), extrapolation 27 % (parametrized_step
-10 %, layer steps 6 %, the UT→SciFi table 7.6 %, its RK4 fallback 3 %). A branch-free
-bisection in `search_sorted` (1–2 % of the samples) measured nothing (not kept).
+(`ParameterSet.extrapolator`: its share of the CPU samples 10.3 → 7.6 %), the forward
+filter's per-node covariance copies skipped when nothing reads them (−2 %), and a
+write prefetch of the next block's output rows in `_combine_nodes` (−2 to −3 %). Where
+the ~400 ns/node go now (perf, samples mapped to the compiled functions): backward
+filter 30 %, forward filter 18–20 %, combination 15–18 % (of which ~6 points are the
+stores of the output covariances: 200 bytes per node into a 51 MB array, write-allocate
+misses; in the forward-only loop the same copy is 11 %), extrapolation 27 %
+(parametrized_step 10 %, layer steps 6 %, the UT→SciFi table 7.6 %, its RK4 fallback
+3 %). Tried, measured, not kept: a branch-free bisection in `search_sorted` (nothing);
+prefetching the UT→SciFi cells when a track leaves the VELO (forward filter 3–4 %
+slower).
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
@@ -134,7 +138,7 @@ from pkf.physics.linalg import (
     zero55,
 )
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.jit import NO_REFCOUNT, stack_array
+from pkf.jit import NO_REFCOUNT, prefetch_write, stack_array
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -527,6 +531,12 @@ def _combine_nodes(lo, hi, x_p, p, info, info_vec, out_state, out_cov):
         y_blk = info[blk]
         x_blk = x_p[blk]
         v_blk = info_vec[blk]
+        # the next block's output rows (nodes max(lo, base − LANES) … base − 1), for writing
+        nxt = max(lo, base - LANES)
+        for byte in range(nxt * out_cov.strides[0], base * out_cov.strides[0], 64):
+            prefetch_write(out_cov, byte)
+        for byte in range(nxt * out_state.strides[0], base * out_state.strides[0], 64):
+            prefetch_write(out_state, byte)
         for l in range(LANES):  # one SIMD loop over the lanes
             bad_pivot[l] = 0.0
             invert_spd_ldl_lane(p_blk, c_lanes, bad_pivot, l)  # P⁻¹
