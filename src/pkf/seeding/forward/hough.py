@@ -197,15 +197,11 @@ def sort_entries(n_e, n_bins, e):
     bin_start[0] = 0
     for b in range(n_bins):
         bin_start[b + 1] = bin_start[b] + bin_count[b]
-    for k in range(n_e):
-        bin_count[e_bin[k]] = 0
-    for k in range(n_e):
+    for k in range(n_e - 1, -1, -1):  # backwards from each bin's end: stable, and the counts end at 0
         b = e_bin[k]
+        bin_count[b] -= 1
         e_order[bin_start[b] + bin_count[b]] = k
-        bin_count[b] += 1
     for k in range(n_e):  # bin_count now holds the x-layer mask of each bin
-        bin_count[e_bin[k]] = 0
-    for k in range(n_e):
         bin_count[e_bin[k]] |= 1 << e_li[k]
 
 
