@@ -266,7 +266,7 @@ def extend_velo_tracks(
         lay = prep.lay
         pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
         inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
-        w = new_work(lay, cfg, prep.max_entries, prep.max_bins)
+        w = new_work(lay, cfg, prep.max_entries, prep.max_bins, prep.hit_u.size)
         extend_kernel(tr, lay, cfg, w, pw, inputs, out)
         upstream_pass(tr, lay, cfg, w, pw, inputs, out, np.full(prep.hit_u.size, -1, dtype=np.int64))
     found = out.hits >= 0
