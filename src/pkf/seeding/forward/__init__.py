@@ -118,9 +118,11 @@ straight loop (`_fit_fixed`, −8 %), the stereo requirement before the follow
 inlined helpers' array arguments were 40 % of the CPU samples) and the UT outlier
 check's smoother without matrix inverses (`outliers.smooth_ut_chi2`, −11 %, the same
 candidates bit for bit), the q/p scans skipping runs of taken hits through links
-(`hough.next_free`) with branch-free bisections (`kalman.first_at_least`), −3 % at
-ν = 7.6 (the same candidates), and ``max_clusters`` 3 → 2 (−1–4 %, efficiency and
-ghosts within 0.02 points). Issue 18.3's profile (perf with a symbol map of the compiled
+(`hough.next_free`) with branch-free bisections (`kalman.first_at_least`, the same
+candidates) and ``max_clusters`` 3 → 2 (efficiency and ghosts within 0.02 points):
+together −1.5 to −3 % of the forward time at ν = 7.6 (19.53 → 19.23 ms on 200 events,
+19.70 → 19.16 on 100; interleaved against the previous code), none measurable at
+ν = 1. Issue 18.3's profile (perf with a symbol map of the compiled
 kernels, ν = 7.6, 50 events, share of all CPU samples of the pattern step): the scan
 driver with its inlined Hough entries 16 % (two thirds the entry loop: the implied q/p,
 its Hough coordinate's division, the bin table), the combinatorial KF `search.search`
