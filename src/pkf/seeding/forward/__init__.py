@@ -117,7 +117,23 @@ straight loop (`_fit_fixed`, −8 %), the stereo requirement before the follow
 (`pkf.jit.NO_REFCOUNT`, −22 %: the atomic reference-count updates of array views and
 inlined helpers' array arguments were 40 % of the CPU samples) and the UT outlier
 check's smoother without matrix inverses (`outliers.smooth_ut_chi2`, −11 %, the same
-candidates bit for bit).
+candidates bit for bit), the q/p scans skipping runs of taken hits through links
+(`hough.next_free`) with branch-free bisections (`kalman.first_at_least`, the same
+candidates) and ``max_clusters`` 3 → 2 (efficiency and ghosts within 0.02 points):
+together −1.5 to −3 % of the forward time at ν = 7.6 (19.53 → 19.23 ms on 200 events,
+19.70 → 19.16 on 100; interleaved against the previous code), none measurable at
+ν = 1. Issue 18.3's profile (perf with a symbol map of the compiled
+kernels, ν = 7.6, 50 events, share of all CPU samples of the pattern step): the scan
+driver with its inlined Hough entries 16 % (two thirds the entry loop: the implied q/p,
+its Hough coordinate's division, the bin table), the combinatorial KF `search.search`
+15 % (a quarter its window bisection and hit loop), the VELO triplet search 7 %, the
+node transports (`scan_states` + the UT→SciFi step + its localisation) 10 %, the
+stereo confirmation 4 %, `fit_fixed` 4 %, the reference trajectories 3.5 %, the UT
+smoother 3 %, the entry sort 2.6 %, the line fits 3.8 %. A quarter of the extensions
+at ν = 7.6 (13 % at ν = 1; median p 11 and 26 GeV) are found only by the second pass's
+full-range scan, half of them with UT hits in the end (without the second pass the
+long efficiency above 5 GeV falls from 96.9 to 74.6 % at ν = 7.6): better UT starts
+would move them to the cheap first pass.
 
 The stages live in modules of this package: `options` (options and status codes),
 `prepare` (layout, sorted hits, cut tables), `records` (the kernels' NamedTuples),
@@ -266,7 +282,7 @@ def extend_velo_tracks(
         lay = prep.lay
         pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
         inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
-        w = new_work(lay, cfg, prep.max_entries, prep.max_bins)
+        w = new_work(lay, cfg, prep.max_entries, prep.max_bins, prep.hit_u.size)
         extend_kernel(tr, lay, cfg, w, pw, inputs, out)
         upstream_pass(tr, lay, cfg, w, pw, inputs, out, np.full(prep.hit_u.size, -1, dtype=np.int64))
     found = out.hits >= 0

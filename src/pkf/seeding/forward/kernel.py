@@ -91,7 +91,7 @@ def _kf_work(n_fwd: int) -> KFWork:
     )
 
 
-def _scan(n_fwd: int, n_sf: int, n_x: int, max_nodes_q: int, max_entries: int, max_bins: int) -> Scan:
+def _scan(n_fwd: int, n_sf: int, n_x: int, max_nodes_q: int, max_entries: int, max_bins: int, n_hits: int) -> Scan:
     n_sf_nodes = (max_nodes_q, n_sf)
     entries = Entries(
         t=np.zeros(max_entries),
@@ -123,6 +123,7 @@ def _scan(n_fwd: int, n_sf: int, n_x: int, max_nodes_q: int, max_entries: int, m
         line=line,
         f_z=np.zeros(n_fwd),
         mask_pop=np.zeros(1 << n_x, dtype=np.int64),
+        free_next=np.arange(n_hits + 1, dtype=np.int64),
     )
 
 
@@ -141,14 +142,14 @@ def _smoother(n_ut: int) -> Smoother:
     )
 
 
-def new_work(lay, cfg, max_entries: int, max_bins: int) -> Work:
-    """Scratch of one kernel call (reused by every track)."""
+def new_work(lay, cfg, max_entries: int, max_bins: int, n_hits: int) -> Work:
+    """Scratch of one kernel call (reused by every track); n_hits: the sorted hits."""
     n_fwd = lay.layer.size
     n_sf = n_fwd - lay.n_ut
     opt, iopt = cfg.opt, cfg.iopt
     max_nodes_q = int(math.ceil(2.0 * opt[O_QMAX] / opt[O_NODE_DW])) + 2
     path = np.full(n_fwd, -1, dtype=np.int64)
-    scan = _scan(n_fwd, n_sf, lay.x_layers.size, max_nodes_q, max_entries, max_bins)
+    scan = _scan(n_fwd, n_sf, lay.x_layers.size, max_nodes_q, max_entries, max_bins, n_hits)
     x_layer_counts(lay, bool(iopt[I_STATION_X] != 0), scan.mask_pop)
     filt = Filter(
         ref=Reference(np.zeros((n_fwd, 5)), np.zeros((n_fwd, 5, 5)), np.zeros((n_fwd, 5, 5))),
@@ -333,6 +334,7 @@ def extend_kernel(tr, lay, cfg, w, pw, inp, out):
                 for j in range(n_fwd):  # a good extension takes its UT and SciFi hits
                     if out.hits[t, j] >= 0:
                         used[out.hits[t, j]] = True
+                        w.scan.free_next[out.hits[t, j]] = out.hits[t, j] + 1
             elif not final_ok:
                 _keep(kept, t, start, ut_best, utc, n_utc)
             continue

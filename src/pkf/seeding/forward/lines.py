@@ -50,12 +50,14 @@ def stereo_score(hits, lay, scan, n_nodes, q_c, alpha, beta, sig2, pc, z_ut, nsi
         var = s * s * max(vy, 0.0) + c * c * sig2 + f_sig[j] * f_sig[j]
         up = c * x + s * y_ref
         hw = nsig * math.sqrt(var)
-        best = nsig * nsig
+        # the smallest r² first, one division (x ↦ x/var is monotonic: the same Δχ² bit for bit)
+        best_r2 = math.inf
         h = first_at_least(hu, loe[j], loe[j + 1], up - hw)
         while h < loe[j + 1] and hu[h] <= up + hw:
             if not used[h]:
-                best = min(best, (hu[h] - up) ** 2 / var)
+                best_r2 = min(best_r2, (hu[h] - up) ** 2)
             h += 1
+        best = min(nsig * nsig, best_r2 / var)
         if best < nsig * nsig:
             n_found += 1
         score += best

@@ -255,7 +255,9 @@ class LineWork(NamedTuple):
 class Scan(NamedTuple):
     """Scratch of the q/p scan (`scifi`): node states, their inverse per x layer (x, q,
     dq/dx at the nodes in x order), the entries, the clusters (first bin, x layers,
-    ranking key), the line scratch, z of every forward layer and the x layers of a mask."""
+    ranking key), the line scratch, z of every forward layer, the x layers of a mask and,
+    per sorted hit, a link toward the next hit not taken (`hough.next_free`: hit h is
+    free iff free_next[h] = h; n_hits + 1 rows, the last a sentinel)."""
 
     nodes: NodeStates
     inv_x: np.ndarray
@@ -268,6 +270,7 @@ class Scan(NamedTuple):
     line: LineWork
     f_z: np.ndarray
     mask_pop: np.ndarray
+    free_next: np.ndarray
 
 
 class Smoother(NamedTuple):

@@ -62,9 +62,12 @@ def _window_children(d, up, hw, sb, kmax, nsig, lo, hi, hits, ch_hit, ch_chi):
     nc = 0
     h = first_at_least(hu, lo, hi, up - hw)
     while h < hi and hu[h] <= up + hw:
+        if used[h]:
+            h += 1
+            continue
         r = hu[h] - up
         c2 = r * r / (sb + hsig[h] * hsig[h])
-        if c2 < nsig * nsig and not used[h]:
+        if c2 < nsig * nsig:
             # insertion into the sorted top-kmax list
             if nc < kmax:
                 pos = nc
