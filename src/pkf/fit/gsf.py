@@ -245,7 +245,7 @@ import numpy as np
 from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import NodeStages, node_stages, scalar_update
-from pkf.physics.linalg import copy5, copy55, equilibrated_cholesky, sandwich, set_identity
+from pkf.physics.linalg import copy5, copy55, sandwich, set_identity
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG, TRACK_VELO
@@ -998,58 +998,137 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
-    """ssum ← P_i + B_j and its equilibrated Cholesky factor (`equilibrated_cholesky`:
-    D·ssum·D = L·Lᵀ, D = diag(scale)) into lu. False if P_i + B_j is not positive definite."""
+def _pair_sums(fcov, nf, bcov, nb_, s, bt):
+    """s[5k + l, p] ← (P_i + B_j)[k, l] for every pair p = i·nb + j and l ≤ k (the lower
+    triangle the factor reads); bt (≥ 15 rows of ≥ nb) scratch: B_j's elements side by side."""
     for k in range(5):
-        for l in range(5):
-            ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
-    return equilibrated_cholesky(ssum, lu, scale)
+        for l in range(k + 1):
+            row = bt[5 * k + l]
+            for j in range(nb_):
+                row[j] = bcov[j, k, l]
+    for k in range(5):
+        for l in range(k + 1):
+            src = bt[5 * k + l]
+            dst = s[5 * k + l]
+            for i in range(nf):
+                f = fcov[i, k, l]
+                o = i * nb_
+                for j in range(nb_):
+                    dst[o + j] = f + src[j]
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
-    """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S), d = ν_j − μ_i, for
-    S = ssum factored by `_pair_factor`: one forward substitution y = L⁻¹·D·d (y is
-    kept: the product's mean needs it), dᵀS⁻¹d = yᵀy, and det S = Π L_kk²·S_kk (one
-    logarithm of the product; the sum of the logarithms where it under- or overflows)."""
-    q = 0.0
-    det = 1.0
+def _pair_factors(n, s, lu, scale, ok):
+    """`equilibrated_cholesky` of the n matrices s[:, p] side by side (structure of arrays:
+    every loop runs over the pairs, which the compiler vectorises; each element is computed
+    by the same operations in the same order, so bitwise as one by one): lu[5k + l, p] = L_kl,
+    scale[k, p] = 1/√S_kk; ok[p] = 1 where S_p is positive definite, else 0 (the rest is
+    then undefined)."""
     for k in range(5):
-        t = (bmu[j, k] - fmu[i, k]) * scale[k]
+        d = s[6 * k]
+        sc = scale[k]
+        for p in range(n):
+            good = d[p] > 0.0 and (k == 0 or ok[p] > 0.0)
+            ok[p] = 1.0 if good else 0.0
+            sc[p] = 1.0 / math.sqrt(d[p])
+    for jj in range(5):
+        djj = s[6 * jj]
+        scj = scale[jj]
+        ljj = lu[6 * jj]
+        for p in range(n):
+            ljj[p] = djj[p] * scj[p] * scj[p]
+        for k in range(jj):
+            lk = lu[5 * jj + k]
+            for p in range(n):
+                ljj[p] -= lk[p] * lk[p]
+        for p in range(n):
+            good = ljj[p] > 0.0 and ok[p] > 0.0
+            ok[p] = 1.0 if good else 0.0
+            ljj[p] = math.sqrt(ljj[p])
+        for i in range(jj + 1, 5):
+            a = s[5 * i + jj]
+            sci = scale[i]
+            lij = lu[5 * i + jj]
+            for p in range(n):
+                lij[p] = a[p] * sci[p] * scj[p]
+            for k in range(jj):
+                lik = lu[5 * i + k]
+                ljk = lu[5 * jj + k]
+                for p in range(n):
+                    lij[p] -= lik[p] * ljk[p]
+            for p in range(n):
+                lij[p] = lij[p] / ljj[p]
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _pair_solves(fmu, nf, bmu, nb_, s, lu, scale, y, q, det, bmt):
+    """`_pair_log_overlap`'s substitution of every pair side by side: y[k, p] = (L⁻¹·D·d)_k,
+    d = ν_j − μ_i, q[p] = Σ y_k², det[p] = Π L_kk²·S_kk (in k order, as one by one); bmt
+    (≥ 5 rows of ≥ nb) scratch."""
+    n = nf * nb_
+    for k in range(5):
+        row = bmt[k]
+        for j in range(nb_):
+            row[j] = bmu[j, k]
+    for p in range(n):
+        q[p] = 0.0
+        det[p] = 1.0
+    for k in range(5):
+        yk = y[k]
+        sck = scale[k]
+        bk = bmt[k]
+        for i in range(nf):
+            f = fmu[i, k]
+            o = i * nb_
+            for j in range(nb_):
+                yk[o + j] = (bk[j] - f) * sck[o + j]
         for l in range(k):
-            t -= lu[k, l] * y[l]
-        t /= lu[k, k]
-        y[k] = t
-        q += t * t
-        det *= lu[k, k] * lu[k, k] * ssum[k, k]
-    if det > 0.0 and math.isfinite(det):
-        logdet = math.log(det)
+            lkl = lu[5 * k + l]
+            yl = y[l]
+            for p in range(n):
+                yk[p] -= lkl[p] * yl[p]
+        lkk = lu[6 * k]
+        skk = s[6 * k]
+        for p in range(n):
+            t = yk[p] / lkk[p]
+            yk[p] = t
+            q[p] += t * t
+            det[p] *= lkk[p] * lkk[p] * skk[p]
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _pair_log_overlap(p, s, lu, q, det):
+    """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S) of pair p from
+    `_pair_solves` (q = dᵀS⁻¹d, det = det S): one logarithm of the product; the sum of
+    the logarithms where it under- or overflows."""
+    d = det[p]
+    if d > 0.0 and math.isfinite(d):
+        logdet = math.log(d)
     else:
         logdet = 0.0
         for k in range(5):
-            logdet += 2.0 * math.log(lu[k, k]) + math.log(ssum[k, k])
-    return -0.5 * (q + logdet)
+            logdet += 2.0 * math.log(lu[6 * k, p]) + math.log(s[6 * k, p])
+    return -0.5 * (q[p] + logdet)
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
-    """The Gaussian product of forward component i and the backward component whose sum
-    with it `_pair_factor` factored (lu, scale) and `_pair_log_overlap` solved (y):
-    with X = L⁻¹·D·P_i (x, 5×5; five forward substitutions), P_i·S⁻¹·P_i = XᵀX and
-    P_i·S⁻¹·d = Xᵀy, so mean μ_i + Xᵀy and covariance P_i − XᵀX (exactly symmetric) —
-    the Kalman form μ_i + K·d, P_i − K·P_i with K = P_i·S⁻¹ without S⁻¹. False if a
-    variance of the product is not positive."""
+def _pair_product(fmu, fcov, i, lu, scale, y, p, x, out_mu, out_cov):
+    """The Gaussian product of forward component i and the backward component of pair p,
+    from the pair's factor (lu, scale) and substitution (y) (`_pair_factors`,
+    `_pair_solves`): with X = L⁻¹·D·P_i (x, 5×5; five forward substitutions),
+    P_i·S⁻¹·P_i = XᵀX and P_i·S⁻¹·d = Xᵀy, so mean μ_i + Xᵀy and covariance P_i − XᵀX
+    (exactly symmetric) — the Kalman form μ_i + K·d, P_i − K·P_i with K = P_i·S⁻¹ without
+    S⁻¹. False if a variance of the product is not positive."""
     for c in range(5):
         for k in range(5):
-            t = fcov[i, k, c] * scale[k]
+            t = fcov[i, k, c] * scale[k, p]
             for l in range(k):
-                t -= lu[k, l] * x[l, c]
-            x[k, c] = t / lu[k, k]
+                t -= lu[5 * k + l, p] * x[l, c]
+            x[k, c] = t / lu[6 * k, p]
     for k in range(5):
         t = fmu[i, k]
         for r in range(5):
-            t += x[r, k] * y[r]
+            t += x[r, k] * y[r, p]
         out_mu[k] = t
     ok = True
     for k in range(5):
@@ -1073,21 +1152,25 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
 
     Pairs (i, j) of positive weights whose P_i + B_j is positive definite are candidates,
     with log weight log a_i + log b_j + log N(μ_i; ν_j, P_i + B_j) (`_pair_log_overlap`).
-    The products' means and covariances (`_pair_product`) are computed only for the
-    candidates the weight cut keeps (w/Σw ≥ weight_cut, and the largest; on lhcb-like
-    electrons 61 of 133), from each candidate's Cholesky factor, scales and substitution
-    kept from its weight (plu (≥ candidates, 5, 5), pvec (≥ candidates, 10)), and each
-    candidate's exp(log weight − largest) is taken once per cut. A candidate whose product has a
+    The sums, their equilibrated Cholesky factors and the substitutions of every pair are
+    computed side by side, a structure of arrays over the nf·nb pairs (`_pair_sums`,
+    `_pair_factors`, `_pair_solves`: plu (25, ≥ nf·nb) the factors, pvec (45, ≥ nf·nb)
+    the rest), bitwise as pair by pair. The products' means and covariances
+    (`_pair_product`) are computed only for the candidates the weight cut keeps (w/Σw ≥
+    weight_cut, and the largest; on lhcb-like electrons 61 of 133), and each candidate's
+    exp(log weight − largest) is taken once per cut. A candidate whose product has a
     non-positive variance is no candidate (as when every product was computed first: it
     counts neither in the largest weight nor in the sum), and the cut is made again
     without it. Equal to computing every product first (02cf0ed) up to rounding."""
-    ssum = scratch[0]
     x = scratch[3]
-    y = vec[:5]
     pair = nearest[0]
     state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
     scaled = moments[1]  # exp(log weight − largest) of each candidate
     log_bw = moments[2]  # log b_j
+    y, scale, s, ok, q, det, bmt = pvec[0:5], pvec[5:10], pvec[10:35], pvec[35], pvec[36], pvec[37], pvec[38:43]
+    _pair_sums(fcov, nf, bcov, nb_, s, plu)
+    _pair_factors(nf * nb_, s, plu, scale, ok)
+    _pair_solves(fmu, nf, bmu, nb_, s, plu, scale, y, q, det, bmt)
     for j in range(nb_):
         log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
     n = 0
@@ -1096,13 +1179,13 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
             continue
         log_fw = math.log(fw[i])
         for j in range(nb_):
-            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, plu[n], pvec[n, 5:10])):
+            p = i * nb_ + j
+            if not (bw[j] > 0.0 and ok[p] > 0.0):
                 continue
-            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(fmu, i, bmu, j, ssum, plu[n], pvec[n, 5:10],
-                                                          pvec[n, :5])
+            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
             if math.isnan(pw[n]):
                 continue
-            pair[n] = i * nb_ + j
+            pair[n] = p
             state[n] = 0.0
             n += 1
     while True:  # the cut, again after a candidate's product failed
@@ -1123,9 +1206,8 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
         for c in range(n):
             w = scaled[c]
             if state[c] == 0.0 and (c == best or (w > 0.0 and w / total >= ctx.weight_cut)):
-                i = pair[c] // nb_
-                copy5(pvec[c, :5], y)  # pmu[c] is written over
-                if _pair_product(fmu, fcov, i, plu[c], pvec[c, 5:10], y, x, pmu[c], pcov[c]):
+                p = pair[c]
+                if _pair_product(fmu, fcov, p // nb_, plu, scale, y, p, x, pmu[c], pcov[c]):
                     state[c] = 1.0
                 else:
                     state[c] = -1.0
@@ -1391,7 +1473,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         ctx, True, np.zeros(n_tracks, dtype=np.int64), qop_mixture,
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros(cap), np.zeros((cap, 5)),
          np.zeros((cap, 5, 5))),
-        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 10))),
+        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((25, cap)), np.zeros((45, cap))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
         np.zeros(n_nodes, dtype=np.int64), np.zeros((2, cap), dtype=np.int64), np.zeros((5, cap)),
         np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
