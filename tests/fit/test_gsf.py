@@ -530,7 +530,7 @@ def _backward_from_scifi_to_velo(share_jacobians):
     mu = np.array([[-3.3, 4.8, -0.03, 0.036, 1.0 / 25.0], [-3.3, 4.8, -0.03, 0.036, 1.0 / 5000.0]])
     cov = np.tile(np.diag([1e-2, 1e-2, 1e-6, 1e-6, 1e-10]), (2, 1, 1))
     alive = _transport(ctx, w, mu, cov, 2, 7826.0, 737.5, np.zeros((5, 5)), np.zeros((5, 5)), np.zeros((5, 5)),
-                       np.zeros((5, 5, 5)))
+                       np.zeros((5, 5, 5)), np.zeros((5, 2)))
     return alive, w, mu, cov
 
 

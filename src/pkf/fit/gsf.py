@@ -223,6 +223,34 @@ reduction), fusing the distance row with the search or the offers (slower), per-
 first indices in `_first_min` with a branch for the offers (×0.90 on the reduction
 alone, ×0.993 on the fit: within the noise).
 
+Issue 18.2, second round, outputs bitwise identical again (the same 163 arrays, and
+`benchmarks/electron_fits.py`'s JSON), each change timed against the one before (lhcb-like
+electrons, 946 tracks, 6 interleaved rounds, CPU time, medians): (1) `_reduce` lists the
+components that search again while it renames the records instead of scanning for them
+afterwards, and `_first_min` keeps a first index per lane (one pass without branches
+instead of a minimum and a scan) — ×0.91 per reduction on realistic 64 → 12 mixtures
+(19.2 → 17.5 µs); the field lookup (`field_at`, `_map_at`) is inlined into the RK4
+stages: together ×0.952 (3.51 → 3.33 ms against cc35fa3); (2) the smoothing's pair sums,
+Cholesky factors and substitutions run side by side over all pairs (`_pair_sums`,
+`_pair_factors`, `_pair_solves`: ×0.82 on 12 × 12 synthetic mixtures), ×0.967 (the
+backward mixture has fewer components near the last node); (3) the components other
+than the lead move through the field map side by side (`_move_others`,
+`pkf.physics.transport.rk4_propagate_map_many`: the z part of each stage's lookup once
+for all, lookups without branches; ×0.72 on the RK4 alone), ×0.969.
+Profile after (2) (perf, JIT symbol map, fit samples only): `_reduce` 52 %, RK4 of the
+components with the inlined field map 12 %, `_combine` 11 %, the lead's Jacobian 4 %,
+material and Bethe–Heitler 5 %, exp/log 5 %, `_normalise_and_cut` 3 %. The reduction
+stays the cost: ~120 per track (64 after a convolution, 30 of the products, forward and
+backward, ×1.28 passes), each 64 → 12 in 52 merges of ~7 vectorised passes over the
+~38 remaining components. Tried and not kept (micro-benchmarks, bitwise identical
+merges, µs per 64 → 12 reduction against 17.5): the merge step fused into one pass
+(rename, distances, offers, the next pick: 20.7, the compiler does not vectorise it),
+each row's distances and minimum in one pass without storing the row (21.4), the offers
+fused with the next pick (17.2–17.5: within the noise), eight lanes in `_first_min` (no
+faster). A pruned search in q/p order (the KL distance is at least (Δq)²/v_i, also in
+floating point) would shorten the searches again but not the offers, which every merge
+needs over all components.
+
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
 the whole run, issue 13), and a track whose output state, covariance or χ² is not
@@ -249,6 +277,7 @@ from pkf.physics.linalg import copy5, copy55, sandwich, set_identity
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG, TRACK_VELO
+from pkf.geometry.field import FIELD_MAP
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 from pkf.jit import NO_REFCOUNT
@@ -257,7 +286,7 @@ from pkf.params.bethe_heitler import (
     bethe_heitler_components,
     load_bethe_heitler_mixture,
 )
-from pkf.physics.transport import rk4_propagate_scalar, rk4_transport_jacobian
+from pkf.physics.transport import rk4_propagate_map_many, rk4_propagate_scalar, rk4_transport_jacobian
 from pkf.physics.constants import MASS_ELECTRON
 
 OUTPUT_CORE = 3
@@ -457,8 +486,10 @@ def _first_min(n, dist):
     without branches: four interleaved running minima, each with the first index where
     it was reached (strict <, so the first of equal values stays), then the four combined
     by value and, for equal values, by index (`_precedes`). The branchy single pass was
-    ×1.2 slower in `_reduce` (64–100 components); the two passes before (minimum, then a
-    scan for its first index, whose exit the branch predictor misses) ×1.04."""
+    ×1.2 slower in `_reduce` (64–100 components); the two passes before (the minimum, then
+    a scan for its first index, whose exit the branch predictor misses) were slower too
+    (with the orphan list of `_reduce`, ×0.91 per reduction together). Eight lanes instead
+    of four: no faster (17.7 against 17.3 µs per reduction)."""
     m0 = np.inf
     m1 = np.inf
     m2 = np.inf
@@ -776,12 +807,13 @@ def widen_to_mixture(cov, mixture_cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
+def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work, many):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians and the leading one stays in the
     envelope; else each its own). A component that fails (leaves the z-parametrised
     envelope, or a variance overflows) gets weight 0. Returns the number of surviving
-    components. `work` (5, 5, 5) scratch: the RK stages and the leading state (nothing
+    components. `work` (5, 5, 5) scratch: the RK stages and the leading state; `many`
+    (5, ≥ n) scratch: the other components' means side by side (`_move_others`; nothing
     is allocated)."""
     if z_to == z_from:
         return n
@@ -797,18 +829,11 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
         # a lead that leaves the envelope has no Jacobian to share: each component its own
         shared = in_envelope(new) and _finite55(seg)
     if shared:
+        _move_others(ref, mu, n, lead, z_from, z_to, many)
         for c in range(n):
             if c == lead:
                 for i in range(4):
                     mu[c, i] = new[i]
-            else:
-                x, y, tx, ty = rk4_propagate_scalar(mu[c, 0], mu[c, 1], mu[c, 2], mu[c, 3], mu[c, 4], z_from,
-                                                    z_to, ref.max_step, ref.field_kind, ref.field_params,
-                                                    ref.field_grid)
-                mu[c, 0] = x
-                mu[c, 1] = y
-                mu[c, 2] = tx
-                mu[c, 3] = ty
             sandwich(seg, cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     else:
@@ -823,6 +848,37 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
         else:
             w[c] = 0.0
     return alive
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _move_others(ref, mu, n, lead, z_from, z_to, many):
+    """RK4 of the means of every component but the lead (whose Jacobian is shared) from
+    z_from to z_to, x, y, tx, ty in place. Through a field map all of them side by side
+    (`rk4_propagate_map_many`, bitwise as one by one; many (5, ≥ n) scratch), otherwise one
+    by one (`rk4_propagate_scalar`)."""
+    if ref.field_kind == FIELD_MAP:
+        m = 0
+        for c in range(n):
+            if c != lead:
+                for i in range(5):
+                    many[i, m] = mu[c, i]
+                m += 1
+        rk4_propagate_map_many(many, m, z_from, z_to, ref.max_step, ref.field_params, ref.field_grid)
+        m = 0
+        for c in range(n):
+            if c != lead:
+                for i in range(4):
+                    mu[c, i] = many[i, m]
+                m += 1
+        return
+    for c in range(n):
+        if c != lead:
+            x, y, tx, ty = rk4_propagate_scalar(mu[c, 0], mu[c, 1], mu[c, 2], mu[c, 3], mu[c, 4], z_from, z_to,
+                                                ref.max_step, ref.field_kind, ref.field_params, ref.field_grid)
+            mu[c, 0] = x
+            mu[c, 1] = y
+            mu[c, 2] = tx
+            mu[c, 3] = ty
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -921,7 +977,7 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
     n = actor.count[0]
     _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2],
-               actor.scratch[6:11])
+               actor.scratch[6:11], actor.moments)
     n = _normalise_and_cut(w, mu, cov, n, 0.0)
     actor.count[0] = n
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
