@@ -273,7 +273,7 @@ def test_kl_reduction_merges_the_closest_q_over_p_pair():
     mu[:, 4] = [1e-4, 1.01e-4, 2e-4, 3e-4]
     cov = np.tile(np.eye(5) * 1e-4, (4, 1, 1))
     cov[:, 4, 4] = 1e-12
-    n = _reduce(w, mu, cov, 4, 3, np.zeros(4, dtype=np.int64), np.zeros((5, 4)))
+    n = _reduce(w, mu, cov, 4, 3, np.zeros((2, 4), dtype=np.int64), np.zeros((5, 4)))
     assert n == 3
     assert np.isclose(w[:n].sum(), 1.0) and np.isclose(w[0], 0.7)
     assert np.isclose(mu[0, 4], (0.4 * 1e-4 + 0.3 * 1.01e-4) / 0.7)
@@ -511,11 +511,11 @@ def test_kl_reduction_reaches_max_components_when_distances_are_nan():
     mu[:, 4] = np.linspace(1e-4, 2e-4, n)
     cov = np.tile(np.eye(5), (n, 1, 1))
     cov[:, 4, 4] = np.nan
-    nearest, moments = np.zeros(n + 1, dtype=np.int64), np.zeros((5, n + 1))
+    nearest, moments = np.zeros((2, n + 1), dtype=np.int64), np.zeros((5, n + 1))
     count = _reduce(w, mu, cov, n, 3, nearest, moments)
     assert count == 3
     # nothing written past the n components (index −1 of the scratch)
-    assert nearest[n] == 0 and np.all(moments[:, n] == 0)
+    assert np.all(nearest[:, n] == 0) and np.all(moments[:, n] == 0)
     assert np.isclose(w[:count].sum(), 1.0)
 
 
@@ -530,7 +530,7 @@ def _backward_from_scifi_to_velo(share_jacobians):
     mu = np.array([[-3.3, 4.8, -0.03, 0.036, 1.0 / 25.0], [-3.3, 4.8, -0.03, 0.036, 1.0 / 5000.0]])
     cov = np.tile(np.diag([1e-2, 1e-2, 1e-6, 1e-6, 1e-10]), (2, 1, 1))
     alive = _transport(ctx, w, mu, cov, 2, 7826.0, 737.5, np.zeros((5, 5)), np.zeros((5, 5)), np.zeros((5, 5)),
-                       np.zeros((5, 5, 5)))
+                       np.zeros((5, 5, 5)), np.zeros((5, 2)))
     return alive, w, mu, cov
 
 

@@ -223,6 +223,34 @@ reduction), fusing the distance row with the search or the offers (slower), per-
 first indices in `_first_min` with a branch for the offers (×0.90 on the reduction
 alone, ×0.993 on the fit: within the noise).
 
+Issue 18.2, second round, outputs bitwise identical again (the same 163 arrays, and
+`benchmarks/electron_fits.py`'s JSON), each change timed against the one before (lhcb-like
+electrons, 946 tracks, 6 interleaved rounds, CPU time, medians): (1) `_reduce` lists the
+components that search again while it renames the records instead of scanning for them
+afterwards, and `_first_min` keeps a first index per lane (one pass without branches
+instead of a minimum and a scan) — ×0.91 per reduction on realistic 64 → 12 mixtures
+(19.2 → 17.5 µs); the field lookup (`field_at`, `_map_at`) is inlined into the RK4
+stages: together ×0.952 (3.51 → 3.33 ms against cc35fa3); (2) the smoothing's pair sums,
+Cholesky factors and substitutions run side by side over all pairs (`_pair_sums`,
+`_pair_factors`, `_pair_solves`: ×0.82 on 12 × 12 synthetic mixtures), ×0.967 (the
+backward mixture has fewer components near the last node); (3) the components other
+than the lead move through the field map side by side (`_move_others`,
+`pkf.physics.transport.rk4_propagate_map_many`: the z part of each stage's lookup once
+for all, lookups without branches; ×0.72 on the RK4 alone), ×0.969.
+Profile after (2) (perf, JIT symbol map, fit samples only): `_reduce` 52 %, RK4 of the
+components with the inlined field map 12 %, `_combine` 11 %, the lead's Jacobian 4 %,
+material and Bethe–Heitler 5 %, exp/log 5 %, `_normalise_and_cut` 3 %. The reduction
+stays the cost: ~120 per track (64 after a convolution, 30 of the products, forward and
+backward, ×1.28 passes), each 64 → 12 in 52 merges of ~7 vectorised passes over the
+~38 remaining components. Tried and not kept (micro-benchmarks, bitwise identical
+merges, µs per 64 → 12 reduction against 17.5): the merge step fused into one pass
+(rename, distances, offers, the next pick: 20.7, the compiler does not vectorise it),
+each row's distances and minimum in one pass without storing the row (21.4), the offers
+fused with the next pick (17.2–17.5: within the noise), eight lanes in `_first_min` (no
+faster). A pruned search in q/p order (the KL distance is at least (Δq)²/v_i, also in
+floating point) would shorten the searches again but not the offers, which every merge
+needs over all components.
+
 Numerical failures. The kernels are compiled with numba's ``error_model="numpy"``: a
 division by zero gives ±inf or NaN instead of raising ZeroDivisionError (which aborted
 the whole run, issue 13), and a track whose output state, covariance or χ² is not
@@ -245,10 +273,11 @@ import numpy as np
 from pkf.fit.options import GSFOptions
 from pkf.fit.driver import max_nodes, register_fitter
 from pkf.fit.kalman import NodeStages, node_stages, scalar_update
-from pkf.physics.linalg import copy5, copy55, equilibrated_cholesky, sandwich, set_identity
+from pkf.physics.linalg import copy5, copy55, sandwich, set_identity
 from pkf.fit.propagate import add_plane_material, in_envelope, plane_path_x0, propagator, register_actor
 from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.seed import TRACK_LONG, TRACK_VELO
+from pkf.geometry.field import FIELD_MAP
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_NO_SEED, STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
 from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_fitter
 from pkf.jit import NO_REFCOUNT
@@ -257,7 +286,7 @@ from pkf.params.bethe_heitler import (
     bethe_heitler_components,
     load_bethe_heitler_mixture,
 )
-from pkf.physics.transport import rk4_propagate_scalar, rk4_transport_jacobian
+from pkf.physics.transport import rk4_propagate_map_many, rk4_propagate_scalar, rk4_transport_jacobian
 from pkf.physics.constants import MASS_ELECTRON
 
 OUTPUT_CORE = 3
@@ -443,40 +472,60 @@ def _kl_row(i, n, q, v, iv, dist):
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _precedes(d, k, best_d, best):
+    """(d, k) if it precedes (best_d, best) — a smaller distance, or an equal one at a
+    smaller index — else (best_d, best); NaN never precedes."""
+    c = d < best_d or (d == best_d and k < best)
+    return (d if c else best_d), (k if c else best)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _first_min(n, dist):
     """(smallest value, its first index) of dist[:n] ((inf, −1) if none is below +inf;
-    NaN never wins): what `_closer` offered the values in index order gives. Two passes:
-    the smallest value in four interleaved running minima without branches (the compiler
-    keeps them in one vector register; the minimum of a set does not depend on the order
-    of the comparisons), then the first index holding it (a scan that stops there). The
-    branchy single pass was ×1.2 slower in `_reduce` (64–100 components)."""
+    NaN never wins): what `_closer` offered the values in index order gives. One pass
+    without branches: four interleaved running minima, each with the first index where
+    it was reached (strict <, so the first of equal values stays), then the four combined
+    by value and, for equal values, by index (`_precedes`). The branchy single pass was
+    ×1.2 slower in `_reduce` (64–100 components); the two passes before (the minimum, then
+    a scan for its first index, whose exit the branch predictor misses) were slower too
+    (with the orphan list of `_reduce`, ×0.91 per reduction together). Eight lanes instead
+    of four: no faster (17.7 against 17.3 µs per reduction)."""
     m0 = np.inf
     m1 = np.inf
     m2 = np.inf
     m3 = np.inf
+    i0 = -1
+    i1 = -1
+    i2 = -1
+    i3 = -1
     k = 0
     while k + 4 <= n:
         x0 = dist[k]
         x1 = dist[k + 1]
         x2 = dist[k + 2]
         x3 = dist[k + 3]
-        m0 = x0 if x0 < m0 else m0
-        m1 = x1 if x1 < m1 else m1
-        m2 = x2 if x2 < m2 else m2
-        m3 = x3 if x3 < m3 else m3
+        c0 = x0 < m0
+        c1 = x1 < m1
+        c2 = x2 < m2
+        c3 = x3 < m3
+        m0 = x0 if c0 else m0
+        m1 = x1 if c1 else m1
+        m2 = x2 if c2 else m2
+        m3 = x3 if c3 else m3
+        i0 = k if c0 else i0
+        i1 = k + 1 if c1 else i1
+        i2 = k + 2 if c2 else i2
+        i3 = k + 3 if c3 else i3
         k += 4
     while k < n:
         x0 = dist[k]
-        m0 = x0 if x0 < m0 else m0
+        c0 = x0 < m0
+        m0 = x0 if c0 else m0
+        i0 = k if c0 else i0
         k += 1
-    m0 = m1 if m1 < m0 else m0
-    m0 = m2 if m2 < m0 else m0
-    m0 = m3 if m3 < m0 else m0
-    if m0 < np.inf:
-        for k in range(n):
-            if dist[k] == m0:
-                return dist[k], k
-    return np.inf, -1
+    m0, i0 = _precedes(m1, i1, m0, i0)
+    m0, i0 = _precedes(m2, i2, m0, i0)
+    return _precedes(m3, i3, m0, i0)
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
@@ -494,8 +543,9 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments):
     returns the new count (the components stay compact in the first slots). `moments`
     (5, ≥ n) is scratch: the nearest distance of each component, its q/p mean, variance
     and inverse variance, and one row of distances, kept contiguous so that a distance
-    costs no division and no strided load; `nearest` (≥ n) int: each component's
-    nearest neighbour (the mixture stays compact: every slot up to the count is live).
+    costs no division and no strided load; `nearest` (2, ≥ n) int: each component's
+    nearest neighbour (the mixture stays compact: every slot up to the count is live) and
+    the list of the components whose neighbour was merged away.
 
     Nearest-neighbour bookkeeping: every component knows its nearest neighbour; the pair
     merged is the component with the smallest such distance and its neighbour (the
@@ -508,10 +558,14 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments):
     the remaining components only (64 → 12 on lhcb-like electrons: rows of 38 on
     average instead of 64). The pairs merged are those of merging in place (02cf0ed's
     bookkeeping) except among exactly equal distances; the order of the surviving
-    components, and with it the rounding of later sums over them, differs."""
+    components, and with it the rounding of later sums over them, differs. The components
+    that search again are listed while their records are renamed (no second scan of the
+    records, whose branch the predictor missed): with `_first_min` in one pass ×0.91 on
+    realistic mixtures (64 → 12, 19.2 → 17.5 µs per reduction), the same merges."""
     if n <= max_n:
         return n
-    nn = nearest
+    nn = nearest[0]
+    orphans = nearest[1]
     nearest_d, q, v, iv, dist = moments[0], moments[1], moments[2], moments[3], moments[4]
     for i in range(n):
         _load_qop_moments(mu, cov, i, q, v, iv)
@@ -528,15 +582,24 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments):
         _load_qop_moments(mu, cov, i, q, v, iv)
         last = count - 1
         count -= 1
+        n_orphans = 0
         for k in range(count + 1):  # -2: the neighbour was merged, search again; last → j (moved below)
             t = nn[k]
-            nn[k] = -2 if (t == i or t == j) else (j if t == last else t)
+            lost = t == i or t == j
+            nn[k] = -2 if lost else (j if t == last else t)
+            orphans[n_orphans] = k
+            n_orphans += 1 if lost else 0
         if j != last:  # the last component fills the slot of j
             _move_component(w, mu, cov, moments, nn, last, j)
             if i == last:
                 i = j
-        for k in range(count):
-            if k != i and nn[k] == -2:
+        for r in range(n_orphans):
+            k = orphans[r]
+            if k == j:
+                continue  # merged away (its slot holds the last component, or is past the count)
+            if k == last:
+                k = j
+            if k != i:
                 _kl_row(k, count, q, v, iv, dist)
                 nearest_d[k], nn[k] = _first_min(count, dist)
         _kl_row(i, count, q, v, iv, dist)
@@ -744,12 +807,13 @@ def widen_to_mixture(cov, mixture_cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
+def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work, many):
     """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
     (the leading component's if ctx.share_jacobians and the leading one stays in the
     envelope; else each its own). A component that fails (leaves the z-parametrised
     envelope, or a variance overflows) gets weight 0. Returns the number of surviving
-    components. `work` (5, 5, 5) scratch: the RK stages and the leading state (nothing
+    components. `work` (5, 5, 5) scratch: the RK stages and the leading state; `many`
+    (5, ≥ n) scratch: the other components' means side by side (`_move_others`; nothing
     is allocated)."""
     if z_to == z_from:
         return n
@@ -765,18 +829,11 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
         # a lead that leaves the envelope has no Jacobian to share: each component its own
         shared = in_envelope(new) and _finite55(seg)
     if shared:
+        _move_others(ref, mu, n, lead, z_from, z_to, many)
         for c in range(n):
             if c == lead:
                 for i in range(4):
                     mu[c, i] = new[i]
-            else:
-                x, y, tx, ty = rk4_propagate_scalar(mu[c, 0], mu[c, 1], mu[c, 2], mu[c, 3], mu[c, 4], z_from,
-                                                    z_to, ref.max_step, ref.field_kind, ref.field_params,
-                                                    ref.field_grid)
-                mu[c, 0] = x
-                mu[c, 1] = y
-                mu[c, 2] = tx
-                mu[c, 3] = ty
             sandwich(seg, cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     else:
@@ -791,6 +848,37 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work):
         else:
             w[c] = 0.0
     return alive
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _move_others(ref, mu, n, lead, z_from, z_to, many):
+    """RK4 of the means of every component but the lead (whose Jacobian is shared) from
+    z_from to z_to, x, y, tx, ty in place. Through a field map all of them side by side
+    (`rk4_propagate_map_many`, bitwise as one by one; many (5, ≥ n) scratch), otherwise one
+    by one (`rk4_propagate_scalar`)."""
+    if ref.field_kind == FIELD_MAP:
+        m = 0
+        for c in range(n):
+            if c != lead:
+                for i in range(5):
+                    many[i, m] = mu[c, i]
+                m += 1
+        rk4_propagate_map_many(many, m, z_from, z_to, ref.max_step, ref.field_params, ref.field_grid)
+        m = 0
+        for c in range(n):
+            if c != lead:
+                for i in range(4):
+                    mu[c, i] = many[i, m]
+                m += 1
+        return
+    for c in range(n):
+        if c != lead:
+            x, y, tx, ty = rk4_propagate_scalar(mu[c, 0], mu[c, 1], mu[c, 2], mu[c, 3], mu[c, 4], z_from, z_to,
+                                                ref.max_step, ref.field_kind, ref.field_params, ref.field_grid)
+            mu[c, 0] = x
+            mu[c, 1] = y
+            mu[c, 2] = tx
+            mu[c, 3] = ty
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -889,7 +977,7 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
     n = actor.count[0]
     _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2],
-               actor.scratch[6:11])
+               actor.scratch[6:11], actor.moments)
     n = _normalise_and_cut(w, mu, cov, n, 0.0)
     actor.count[0] = n
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
@@ -966,58 +1054,137 @@ def _predicted_chi2(w, mu, cov, n, n_meas, hx, hy, m, sigma, mean, cmat):
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _pair_factor(fcov, i, bcov, j, ssum, lu, scale):
-    """ssum ← P_i + B_j and its equilibrated Cholesky factor (`equilibrated_cholesky`:
-    D·ssum·D = L·Lᵀ, D = diag(scale)) into lu. False if P_i + B_j is not positive definite."""
+def _pair_sums(fcov, nf, bcov, nb_, s, bt):
+    """s[5k + l, p] ← (P_i + B_j)[k, l] for every pair p = i·nb + j and l ≤ k (the lower
+    triangle the factor reads); bt (≥ 15 rows of ≥ nb) scratch: B_j's elements side by side."""
     for k in range(5):
-        for l in range(5):
-            ssum[k, l] = fcov[i, k, l] + bcov[j, k, l]
-    return equilibrated_cholesky(ssum, lu, scale)
+        for l in range(k + 1):
+            row = bt[5 * k + l]
+            for j in range(nb_):
+                row[j] = bcov[j, k, l]
+    for k in range(5):
+        for l in range(k + 1):
+            src = bt[5 * k + l]
+            dst = s[5 * k + l]
+            for i in range(nf):
+                f = fcov[i, k, l]
+                o = i * nb_
+                for j in range(nb_):
+                    dst[o + j] = f + src[j]
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _pair_log_overlap(fmu, i, bmu, j, ssum, lu, scale, y):
-    """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S), d = ν_j − μ_i, for
-    S = ssum factored by `_pair_factor`: one forward substitution y = L⁻¹·D·d (y is
-    kept: the product's mean needs it), dᵀS⁻¹d = yᵀy, and det S = Π L_kk²·S_kk (one
-    logarithm of the product; the sum of the logarithms where it under- or overflows)."""
-    q = 0.0
-    det = 1.0
+def _pair_factors(n, s, lu, scale, ok):
+    """`equilibrated_cholesky` of the n matrices s[:, p] side by side (structure of arrays:
+    every loop runs over the pairs, which the compiler vectorises; each element is computed
+    by the same operations in the same order, so bitwise as one by one): lu[5k + l, p] = L_kl,
+    scale[k, p] = 1/√S_kk; ok[p] = 1 where S_p is positive definite, else 0 (the rest is
+    then undefined)."""
     for k in range(5):
-        t = (bmu[j, k] - fmu[i, k]) * scale[k]
+        d = s[6 * k]
+        sc = scale[k]
+        for p in range(n):
+            good = d[p] > 0.0 and (k == 0 or ok[p] > 0.0)
+            ok[p] = 1.0 if good else 0.0
+            sc[p] = 1.0 / math.sqrt(d[p])
+    for jj in range(5):
+        djj = s[6 * jj]
+        scj = scale[jj]
+        ljj = lu[6 * jj]
+        for p in range(n):
+            ljj[p] = djj[p] * scj[p] * scj[p]
+        for k in range(jj):
+            lk = lu[5 * jj + k]
+            for p in range(n):
+                ljj[p] -= lk[p] * lk[p]
+        for p in range(n):
+            good = ljj[p] > 0.0 and ok[p] > 0.0
+            ok[p] = 1.0 if good else 0.0
+            ljj[p] = math.sqrt(ljj[p])
+        for i in range(jj + 1, 5):
+            a = s[5 * i + jj]
+            sci = scale[i]
+            lij = lu[5 * i + jj]
+            for p in range(n):
+                lij[p] = a[p] * sci[p] * scj[p]
+            for k in range(jj):
+                lik = lu[5 * i + k]
+                ljk = lu[5 * jj + k]
+                for p in range(n):
+                    lij[p] -= lik[p] * ljk[p]
+            for p in range(n):
+                lij[p] = lij[p] / ljj[p]
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _pair_solves(fmu, nf, bmu, nb_, s, lu, scale, y, q, det, bmt):
+    """`_pair_log_overlap`'s substitution of every pair side by side: y[k, p] = (L⁻¹·D·d)_k,
+    d = ν_j − μ_i, q[p] = Σ y_k², det[p] = Π L_kk²·S_kk (in k order, as one by one); bmt
+    (≥ 5 rows of ≥ nb) scratch."""
+    n = nf * nb_
+    for k in range(5):
+        row = bmt[k]
+        for j in range(nb_):
+            row[j] = bmu[j, k]
+    for p in range(n):
+        q[p] = 0.0
+        det[p] = 1.0
+    for k in range(5):
+        yk = y[k]
+        sck = scale[k]
+        bk = bmt[k]
+        for i in range(nf):
+            f = fmu[i, k]
+            o = i * nb_
+            for j in range(nb_):
+                yk[o + j] = (bk[j] - f) * sck[o + j]
         for l in range(k):
-            t -= lu[k, l] * y[l]
-        t /= lu[k, k]
-        y[k] = t
-        q += t * t
-        det *= lu[k, k] * lu[k, k] * ssum[k, k]
-    if det > 0.0 and math.isfinite(det):
-        logdet = math.log(det)
+            lkl = lu[5 * k + l]
+            yl = y[l]
+            for p in range(n):
+                yk[p] -= lkl[p] * yl[p]
+        lkk = lu[6 * k]
+        skk = s[6 * k]
+        for p in range(n):
+            t = yk[p] / lkk[p]
+            yk[p] = t
+            q[p] += t * t
+            det[p] *= lkk[p] * lkk[p] * skk[p]
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _pair_log_overlap(p, s, lu, q, det):
+    """log N(μ_i; ν_j, S) + (5/2)·log 2π = −½·(dᵀS⁻¹d + log det S) of pair p from
+    `_pair_solves` (q = dᵀS⁻¹d, det = det S): one logarithm of the product; the sum of
+    the logarithms where it under- or overflows."""
+    d = det[p]
+    if d > 0.0 and math.isfinite(d):
+        logdet = math.log(d)
     else:
         logdet = 0.0
         for k in range(5):
-            logdet += 2.0 * math.log(lu[k, k]) + math.log(ssum[k, k])
-    return -0.5 * (q + logdet)
+            logdet += 2.0 * math.log(lu[6 * k, p]) + math.log(s[6 * k, p])
+    return -0.5 * (q[p] + logdet)
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
-def _pair_product(fmu, fcov, i, lu, scale, y, x, out_mu, out_cov):
-    """The Gaussian product of forward component i and the backward component whose sum
-    with it `_pair_factor` factored (lu, scale) and `_pair_log_overlap` solved (y):
-    with X = L⁻¹·D·P_i (x, 5×5; five forward substitutions), P_i·S⁻¹·P_i = XᵀX and
-    P_i·S⁻¹·d = Xᵀy, so mean μ_i + Xᵀy and covariance P_i − XᵀX (exactly symmetric) —
-    the Kalman form μ_i + K·d, P_i − K·P_i with K = P_i·S⁻¹ without S⁻¹. False if a
-    variance of the product is not positive."""
+def _pair_product(fmu, fcov, i, lu, scale, y, p, x, out_mu, out_cov):
+    """The Gaussian product of forward component i and the backward component of pair p,
+    from the pair's factor (lu, scale) and substitution (y) (`_pair_factors`,
+    `_pair_solves`): with X = L⁻¹·D·P_i (x, 5×5; five forward substitutions),
+    P_i·S⁻¹·P_i = XᵀX and P_i·S⁻¹·d = Xᵀy, so mean μ_i + Xᵀy and covariance P_i − XᵀX
+    (exactly symmetric) — the Kalman form μ_i + K·d, P_i − K·P_i with K = P_i·S⁻¹ without
+    S⁻¹. False if a variance of the product is not positive."""
     for c in range(5):
         for k in range(5):
-            t = fcov[i, k, c] * scale[k]
+            t = fcov[i, k, c] * scale[k, p]
             for l in range(k):
-                t -= lu[k, l] * x[l, c]
-            x[k, c] = t / lu[k, k]
+                t -= lu[5 * k + l, p] * x[l, c]
+            x[k, c] = t / lu[6 * k, p]
     for k in range(5):
         t = fmu[i, k]
         for r in range(5):
-            t += x[r, k] * y[r]
+            t += x[r, k] * y[r, p]
         out_mu[k] = t
     ok = True
     for k in range(5):
@@ -1041,21 +1208,25 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
 
     Pairs (i, j) of positive weights whose P_i + B_j is positive definite are candidates,
     with log weight log a_i + log b_j + log N(μ_i; ν_j, P_i + B_j) (`_pair_log_overlap`).
-    The products' means and covariances (`_pair_product`) are computed only for the
-    candidates the weight cut keeps (w/Σw ≥ weight_cut, and the largest; on lhcb-like
-    electrons 61 of 133), from each candidate's Cholesky factor, scales and substitution
-    kept from its weight (plu (≥ candidates, 5, 5), pvec (≥ candidates, 10)), and each
-    candidate's exp(log weight − largest) is taken once per cut. A candidate whose product has a
+    The sums, their equilibrated Cholesky factors and the substitutions of every pair are
+    computed side by side, a structure of arrays over the nf·nb pairs (`_pair_sums`,
+    `_pair_factors`, `_pair_solves`: plu (25, ≥ nf·nb) the factors, pvec (45, ≥ nf·nb)
+    the rest), bitwise as pair by pair. The products' means and covariances
+    (`_pair_product`) are computed only for the candidates the weight cut keeps (w/Σw ≥
+    weight_cut, and the largest; on lhcb-like electrons 61 of 133), and each candidate's
+    exp(log weight − largest) is taken once per cut. A candidate whose product has a
     non-positive variance is no candidate (as when every product was computed first: it
     counts neither in the largest weight nor in the sum), and the cut is made again
     without it. Equal to computing every product first (02cf0ed) up to rounding."""
-    ssum = scratch[0]
     x = scratch[3]
-    y = vec[:5]
-    pair = nearest
+    pair = nearest[0]
     state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
     scaled = moments[1]  # exp(log weight − largest) of each candidate
     log_bw = moments[2]  # log b_j
+    y, scale, s, ok, q, det, bmt = pvec[0:5], pvec[5:10], pvec[10:35], pvec[35], pvec[36], pvec[37], pvec[38:43]
+    _pair_sums(fcov, nf, bcov, nb_, s, plu)
+    _pair_factors(nf * nb_, s, plu, scale, ok)
+    _pair_solves(fmu, nf, bmu, nb_, s, plu, scale, y, q, det, bmt)
     for j in range(nb_):
         log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
     n = 0
@@ -1064,13 +1235,13 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
             continue
         log_fw = math.log(fw[i])
         for j in range(nb_):
-            if not (bw[j] > 0.0 and _pair_factor(fcov, i, bcov, j, ssum, plu[n], pvec[n, 5:10])):
+            p = i * nb_ + j
+            if not (bw[j] > 0.0 and ok[p] > 0.0):
                 continue
-            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(fmu, i, bmu, j, ssum, plu[n], pvec[n, 5:10],
-                                                          pvec[n, :5])
+            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
             if math.isnan(pw[n]):
                 continue
-            pair[n] = i * nb_ + j
+            pair[n] = p
             state[n] = 0.0
             n += 1
     while True:  # the cut, again after a candidate's product failed
@@ -1091,9 +1262,8 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
         for c in range(n):
             w = scaled[c]
             if state[c] == 0.0 and (c == best or (w > 0.0 and w / total >= ctx.weight_cut)):
-                i = pair[c] // nb_
-                copy5(pvec[c, :5], y)  # pmu[c] is written over
-                if _pair_product(fmu, fcov, i, plu[c], pvec[c, 5:10], y, x, pmu[c], pcov[c]):
+                p = pair[c]
+                if _pair_product(fmu, fcov, p // nb_, plu, scale, y, p, x, pmu[c], pcov[c]):
                     state[c] = 1.0
                 else:
                     state[c] = -1.0
@@ -1359,9 +1529,9 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         ctx, True, np.zeros(n_tracks, dtype=np.int64), qop_mixture,
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros(cap), np.zeros((cap, 5)),
          np.zeros((cap, 5, 5))),
-        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 5, 5)), np.zeros((cap, 10))),
+        (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((25, cap)), np.zeros((45, cap))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
-        np.zeros(n_nodes, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((5, cap)),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros((2, cap), dtype=np.int64), np.zeros((5, cap)),
         np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None

@@ -128,27 +128,35 @@ def _dipole_at(params, x, y, z):
     return bx, by, bz
 
 
-@nb.njit(cache=True, **NO_REFCOUNT)
-def _map_at(params, grid, x, y, z):
-    """Trilinear interpolation of the sampled field; outside the grid the edge value;
-    NaN for a non-finite position (never an out-of-range memory read)."""
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        return math.nan, math.nan, math.nan
-    fx = (x - params[_MAP_X0]) / params[_MAP_DX]
-    fy = (y - params[_MAP_Y0]) / params[_MAP_DY]
-    fz = (z - params[_MAP_Z0]) / params[_MAP_DZ]
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def map_cell_z(params, grid, z):
+    """The z part of the map's trilinear interpolation at z [mm]: (z finite, cell index iz,
+    fraction uz), shared by every lookup at that z (`map_at_cell_z`)."""
+    ok = math.isfinite(z)
+    fz = (z - params[_MAP_Z0]) / params[_MAP_DZ] if ok else 0.0
+    nz = grid.shape[2]
+    fz = min(max(fz, 0.0), nz - 1.0)
+    iz = min(int(fz), nz - 2)
+    return ok, iz, fz - iz
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def map_at_cell_z(params, grid, x, y, z_ok, iz, uz):
+    """Trilinear interpolation of the sampled field at (x, y) [mm] and the z cell of
+    `map_cell_z`; outside the grid the edge value; NaN for a non-finite position (the
+    grid is then read at the first cell: never an out-of-range read). Without branches,
+    so that a loop over several positions has none."""
+    good = math.isfinite(x) and math.isfinite(y) and z_ok
+    fx = (x - params[_MAP_X0]) / params[_MAP_DX] if good else 0.0
+    fy = (y - params[_MAP_Y0]) / params[_MAP_DY] if good else 0.0
     nx = grid.shape[0]
     ny = grid.shape[1]
-    nz = grid.shape[2]
     fx = min(max(fx, 0.0), nx - 1.0)
     fy = min(max(fy, 0.0), ny - 1.0)
-    fz = min(max(fz, 0.0), nz - 1.0)
     ix = min(int(fx), nx - 2)
     iy = min(int(fy), ny - 2)
-    iz = min(int(fz), nz - 2)
     ux = fx - ix
     uy = fy - iy
-    uz = fz - iz
     out0 = 0.0
     out1 = 0.0
     out2 = 0.0
@@ -161,12 +169,24 @@ def _map_at(params, grid, x, y, z):
                 out0 += w * grid[ix + cx, iy + cy, iz + cz, 0]
                 out1 += w * grid[ix + cx, iy + cy, iz + cz, 1]
                 out2 += w * grid[ix + cx, iy + cy, iz + cz, 2]
-    return out0, out1, out2
+    nan = math.nan
+    return (out0 if good else nan), (out1 if good else nan), (out2 if good else nan)
 
 
-@nb.njit(cache=True, **NO_REFCOUNT)
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _map_at(params, grid, x, y, z):
+    """Trilinear interpolation of the sampled field; outside the grid the edge value;
+    NaN for a non-finite position (never an out-of-range memory read)."""
+    z_ok, iz, uz = map_cell_z(params, grid, z)
+    return map_at_cell_z(params, grid, x, y, z_ok, iz, uz)
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def field_at(kind, params, grid, x, y, z):
-    """Field (bx, by, bz) [T] at (x, y, z) [mm] for any model kind."""
+    """Field (bx, by, bz) [T] at (x, y, z) [mm] for any model kind. Inlined with the map's
+    interpolation into its callers (the RK4 stages): as separate functions, the call and
+    its returned tuple were a third of the field's time in the GSF (perf, lhcb-like
+    electrons)."""
     if kind == FIELD_DIPOLE:
         return _dipole_at(params, x, y, z)
     if kind == FIELD_MAP:

@@ -35,7 +35,7 @@ import math
 import numba as nb
 import numpy as np
 
-from pkf.geometry.field import FIELD_UNIFORM, field_at
+from pkf.geometry.field import FIELD_UNIFORM, field_at, map_at_cell_z, map_cell_z
 from pkf.jit import NO_REFCOUNT
 
 C_LIGHT = 0.299792458  # κ, MeV/(T·mm): curvature [1/mm] = κ·B[T]/p[MeV]
@@ -113,6 +113,58 @@ def rk4_propagate_scalar(x, y, tx, ty, qop, z_from, z_to, max_step,
         ty = ty + h / 6.0 * (k1ty + 2.0 * k2ty + 2.0 * k3ty + k4ty)
         z = z + h
     return x, y, tx, ty
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def rk4_propagate_map_many(s, n, z_from, z_to, max_step, field_params, field_grid):
+    """`rk4_propagate_scalar` through a field map (FIELD_MAP) of n states side by side,
+    bitwise: s (5, ≥ n) rows x, y, tx, ty, q/p, propagated in place. Every state takes
+    the same steps, so the z part of each stage's map lookup (`map_cell_z`) is taken once
+    for all of them, and the lookups have no branches: ×0.72 against one state at a time
+    with the lookup as a function (12 GSF components through the lhcb-like magnet,
+    48 → 35 µs)."""
+    dz = z_to - z_from
+    if dz == 0.0:
+        return
+    nsteps = max(1, int(math.ceil(abs(dz) / max_step)))
+    h = dz / nsteps
+    z = z_from
+    xs, ys, txs, tys, qops = s[0], s[1], s[2], s[3], s[4]
+    for _ in range(nsteps):
+        a_ok, a_iz, a_uz = map_cell_z(field_params, field_grid, z)
+        b_ok, b_iz, b_uz = map_cell_z(field_params, field_grid, z + 0.5 * h)
+        e_ok, e_iz, e_uz = map_cell_z(field_params, field_grid, z + h)
+        for c in range(n):
+            x = xs[c]
+            y = ys[c]
+            tx = txs[c]
+            ty = tys[c]
+            qop = qops[c]
+            bx, by, bz = map_at_cell_z(field_params, field_grid, x, y, a_ok, a_iz, a_uz)
+            k1tx, k1ty = slope_derivatives(tx, ty, qop, bx, by, bz)
+            x2 = x + 0.5 * h * tx
+            y2 = y + 0.5 * h * ty
+            tx2 = tx + 0.5 * h * k1tx
+            ty2 = ty + 0.5 * h * k1ty
+            bx, by, bz = map_at_cell_z(field_params, field_grid, x2, y2, b_ok, b_iz, b_uz)
+            k2tx, k2ty = slope_derivatives(tx2, ty2, qop, bx, by, bz)
+            x3 = x + 0.5 * h * tx2
+            y3 = y + 0.5 * h * ty2
+            tx3 = tx + 0.5 * h * k2tx
+            ty3 = ty + 0.5 * h * k2ty
+            bx, by, bz = map_at_cell_z(field_params, field_grid, x3, y3, b_ok, b_iz, b_uz)
+            k3tx, k3ty = slope_derivatives(tx3, ty3, qop, bx, by, bz)
+            x4 = x + h * tx3
+            y4 = y + h * ty3
+            tx4 = tx + h * k3tx
+            ty4 = ty + h * k3ty
+            bx, by, bz = map_at_cell_z(field_params, field_grid, x4, y4, e_ok, e_iz, e_uz)
+            k4tx, k4ty = slope_derivatives(tx4, ty4, qop, bx, by, bz)
+            xs[c] = x + h / 6.0 * (tx + 2.0 * tx2 + 2.0 * tx3 + tx4)
+            ys[c] = y + h / 6.0 * (ty + 2.0 * ty2 + 2.0 * ty3 + ty4)
+            txs[c] = tx + h / 6.0 * (k1tx + 2.0 * k2tx + 2.0 * k3tx + k4tx)
+            tys[c] = ty + h / 6.0 * (k1ty + 2.0 * k2ty + 2.0 * k3ty + k4ty)
+        z = z + h
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
