@@ -43,7 +43,7 @@ __all__ = [
 PARQUET_WRITE_OPTIONS: dict[str, object] = {
     "version": "2.6",
     "compression": "zstd",
-    "compression_level": 3,
+    "compression_level": 1,
     "use_dictionary": True,
     "write_statistics": True,
     "row_group_size": 1 << 20,

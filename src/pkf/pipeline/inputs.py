@@ -162,29 +162,39 @@ def files_content_hash(files, block: int = 1 << 20) -> str:
 
 
 def column(table: pa.Table, name: str, dtype=np.float64) -> np.ndarray:
-    return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)
+    """Column ``name`` of ``table`` as a new, writable numpy array of ``dtype``: one copy (a column
+    of several chunks, or with nulls, is already one when pyarrow converts it)."""
+    values = table.column(name).to_numpy(zero_copy_only=False)
+    if values.dtype == dtype and values.flags.writeable:
+        return values  # pyarrow's zero-copy views are read-only: this one is new
+    return values.astype(dtype)
 
 
 def align_mc(dataset, event_id: np.ndarray):
     """Per hit row: its MC particle (0 for noise or no MC record) and the true state
     (x, y, tx, ty, q/p) of its mc_hit (NaN for noise), shape (n_hits, 5)."""
     mc = dataset.mc_hits
-    mc_event, mc_hit = column(mc, "event_id", np.int64), column(mc, "hit_id", np.int64)
-    hit_id = column(dataset.hits, "hit_id", np.int64)
+
+    def values(table, name):  # read-only where pyarrow gives a view: nothing here writes to them
+        return table.column(name).to_numpy(zero_copy_only=False)
+
+    mc_event, mc_hit, hit_id = values(mc, "event_id"), values(mc, "hit_id"), values(dataset.hits, "hit_id")
     if np.array_equal(mc_event, event_id) and np.array_equal(mc_hit, hit_id):
         # mc_hits row by row as the hits (pkf simulate writes them so): no search; 1,000 minbias
         # events at ν = 7.6, 0.35 s of CPU
-        idx, found = np.arange(hit_id.size), np.ones(hit_id.size, dtype=bool)
+        rows, found = slice(None), np.ones(hit_id.size, dtype=bool)
     else:
-        mc_key, hit_key = pair_keys(mc_event, mc_hit, event_id, hit_id)
+        mc_key, hit_key = pair_keys(mc_event.astype(np.int64), mc_hit.astype(np.int64), event_id,
+                                    hit_id.astype(np.int64))
         order = np.argsort(mc_key, kind="stable")
         pos = np.minimum(np.searchsorted(mc_key[order], hit_key), max(mc_key.size - 1, 0))
-        idx = order[pos]
-        found = mc_key[idx] == hit_key
-    particle = column(mc, "particle_id", np.int64)[idx]
-    truth = np.column_stack([column(mc, c)[idx] for c in STATE_NAMES])
+        rows = order[pos]
+        found = mc_key[rows] == hit_key
+    truth = np.empty((hit_id.size, len(STATE_NAMES)))
+    for i, name in enumerate(STATE_NAMES):
+        truth[:, i] = values(mc, name)[rows]
     truth[~found] = np.nan
-    return np.where(found, particle, 0), truth
+    return np.where(found, values(mc, "particle_id")[rows].astype(np.int64, copy=False), 0), truth
 
 
 def production_truth(dataset) -> dict:

@@ -25,6 +25,7 @@ from pkf.geometry.detector import BUILTIN_GEOMETRIES
 from pkf.io.atomic import atomic_write_json, check_output_apart, check_output_dir
 from pkf.io.stream import close_readers, file_sha256
 from pkf.pipeline import triplet_pattern
+from pkf.pipeline.allocator import keep_freed_memory
 from pkf.pipeline.batch import StageClock, metrics_from_counts
 from pkf.pipeline.config import ReconstructionConfig
 from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
@@ -78,6 +79,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
     echo: called with a line of news (e.g. resumed partitions), if given.
     """
     wall0 = time.perf_counter()
+    keep_freed_memory()  # batches reuse freed arrays instead of faulting in new pages (pkf.pipeline.allocator)
     config.validate()
     dataset_path = Path(dataset_path)
     workers = default_workers() if workers is None else workers
