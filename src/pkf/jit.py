@@ -76,7 +76,9 @@ def _prefetch_codegen(write: int):
         offset = context.cast(builder, args[1], signature.args[1], types.intp)
         address = builder.gep(builder.bitcast(data, i8p), [offset])
         function_type = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
-        prefetch = cgutils.get_or_insert_function(builder.module, function_type, "llvm.prefetch.p0")
+        # declare_intrinsic mangles the pointer type as this llvmlite does ("p0i8"; LLVM remangles
+        # it where pointers are opaque): a fixed "llvm.prefetch.p0" fails LLVM 14's verifier (numba 0.58)
+        prefetch = builder.module.declare_intrinsic("llvm.prefetch", [i8p], function_type)
         builder.call(prefetch, [address, i32(write), i32(3), i32(1)])  # keep in all levels, data
         return context.get_dummy_value()
 
