@@ -156,10 +156,12 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
 
     from pkf.io.reader import Dataset
     from pkf.io.stream import read_rows
+    from pkf.pipeline.allocator import keep_freed_memory
     from pkf.pipeline.batch import StageClock, batch_rows, context_for, reconstruct_batch, run_tables
     from pkf.pipeline.rows import RowBlocks
     from pkf.pipeline.config import ReconstructionConfig
 
+    keep_freed_memory()  # in a Dask worker too (pkf.pipeline.allocator)
     config = ReconstructionConfig.from_dict(task.config)
     ctx = context_for(_geometry(task.dataset, config.geometry), config)
     timing: dict = {}
