@@ -35,6 +35,7 @@ import pyarrow.parquet as pq
 
 from pkf.errors import InputError
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES, TableSpec, spec_for
+from pkf.io.value_kernels import first_nonfinite, has_nan
 
 __all__ = [
     "Dataset",
@@ -341,7 +342,7 @@ def noise_truth_as_null(table: pa.Table, spec: TableSpec | None) -> pa.Table:
         if name not in table.column_names:
             continue
         col = table.column(name)
-        if not pc.any(pc.is_nan(col)).as_py():  # no NaN at all (pkf simulate writes null): nothing to replace
+        if not has_nan(col):  # no NaN at all (pkf simulate writes null): nothing to replace
             continue
         noise = pc.equal(table.column(particle), 0) if noise is None else noise
         nan = pc.fill_null(pc.and_(noise, pc.is_nan(col)), False)
@@ -471,10 +472,11 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
         return
     checks: list[Callable[[], None]] = []
 
-    def check(mask_of, column: str, problem_of) -> None:
-        """Add a check: rows where ``mask_of()`` is true are bad, ``problem_of(row)`` says why."""
+    def check(mask_of, column: str, problem_of, first_row_of=None) -> None:
+        """Add a check: rows where ``mask_of()`` is true are bad (or the row ``first_row_of()``
+        gives), ``problem_of(row)`` says why."""
         def run():
-            row = _first_true(mask_of())
+            row = first_row_of() if first_row_of is not None else _first_true(mask_of())
             if row is not None:
                 raise _row_error(source, table, row, column, key, problem_of(row))
         checks.append(run)
@@ -486,9 +488,9 @@ def _validate_values(table: pa.Table, schema: pa.Schema, spec: TableSpec | None,
         if not fld.nullable and table.column(fld.name).null_count:
             check(lambda c=fld.name: pc.is_null(table.column(c)), fld.name, lambda row: "is null")
     if spec is not None:
-        for name in spec.finite:
-            check(lambda c=name: pc.invert(pc.is_finite(table.column(c))), name,
-                  lambda row, c=name: f"is {value(c, row)}")
+        for name in spec.finite:  # one compiled pass over the values (pkf.io.value_kernels)
+            check(None, name, lambda row, c=name: f"is {value(c, row)}",
+                  first_row_of=lambda c=name: first_nonfinite(table.column(c)))
         for name in spec.positive:
             check(lambda c=name: pc.less_equal(table.column(c), 0), name,
                   lambda row, c=name: f"is {value(c, row)}, must be > 0")
