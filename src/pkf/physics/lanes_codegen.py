@@ -150,9 +150,228 @@ def solve5_source() -> str:
     return "\n".join(lines) + "\n"
 
 
+# ----------------------------------------------------------------------------------
+# Track lanes (`pkf.fit.kalman_lanes`): the per-node algebra of the Kalman core for one
+# lane of a group of tracks, each lane loop's body straight-line code (see above).
+# ----------------------------------------------------------------------------------
+
+_TRANSPORT_DOC = '''    """Lane l of out = f·c·fᵀ + q (each 5×5×lanes; c may be out) and out2 ← out: the
+    products of `sandwich` (dense, the same order of the sums, from 0.0), then + q element
+    by element, as the Kalman core does (`transport_cov` and the noise: bitwise the dense
+    product for finite inputs). Straight-line (`pkf.physics.lanes_codegen`)."""'''
+
+
+def _read55(name: str, array: str) -> list[str]:
+    """Statements reading lane l of the 5×5×lanes `array` into scalars name{i}{j}."""
+    return [
+        ", ".join(f"{name}{i}{j}" for j in range(5)) + " = " + ", ".join(f"{array}[{i}, {j}, l]" for j in range(5))
+        for i in range(5)
+    ]
+
+
+def transport_cov_lane_source() -> str:
+    """Source of ``transport_cov_lane(f, c, q, out, out2, l)``."""
+    lines = ['@nb.njit(cache=True, inline="always")', "def transport_cov_lane(f, c, q, out, out2, l):", _TRANSPORT_DOC]
+
+    def emit(statement: str) -> None:
+        lines.append("    " + statement)
+
+    for statement in _read55("f", "f") + _read55("c", "c"):
+        emit(statement)
+    for i in range(5):  # tmp = f·c
+        for j in range(5):
+            emit("s = 0.0")
+            for k in range(5):
+                emit(f"s += f{i}{k} * c{k}{j}")
+            emit(f"t{i}{j} = s")
+    for i in range(5):  # out = tmp·fᵀ (upper triangle, mirrored), + q
+        for j in range(i, 5):
+            emit("s = 0.0")
+            for k in range(5):
+                emit(f"s += t{i}{k} * f{j}{k}")
+            emit(f"v = s + q[{i}, {j}, l]")
+            emit(f"out[{i}, {j}, l] = v")
+            emit(f"out2[{i}, {j}, l] = v")
+            if i != j:
+                emit(f"v = s + q[{j}, {i}, l]")
+                emit(f"out[{j}, {i}, l] = v")
+                emit(f"out2[{j}, {i}, l] = v")
+    return "\n".join(lines) + "\n"
+
+
+_UPDATE_DOC = '''    """`pkf.fit.kalman.scalar_update` of lane l of (x, p) (5×lanes, 5×5×lanes) with the
+    measurement hx[l]·x + hy[l]·y = m[l] of variance var[l], where do[l] ≠ 0 (elsewhere
+    x, p and chi2 keep their values: selects, no branch): the same operations in the same
+    order (bitwise its x, p and χ² increment, added to chi2[l]). A lane with S ≤ 0 gets
+    bad[l] = 1 (its x, p then undefined). Straight-line (`pkf.physics.lanes_codegen`);
+    compile the caller with error_model="numpy"."""'''
+
+
+def scalar_update_lane_source() -> str:
+    """Source of ``scalar_update_lane(x, p, hx, hy, m, var, do, chi2, bad, l)``."""
+    lines = [
+        '@nb.njit(cache=True, inline="always")',
+        "def scalar_update_lane(x, p, hx, hy, m, var, do, chi2, bad, l):",
+        _UPDATE_DOC,
+    ]
+
+    def emit(statement: str) -> None:
+        lines.append("    " + statement)
+
+    emit("d = do[l] != 0.0")
+    emit("h0 = hx[l]")
+    emit("h1 = hy[l]")
+    emit(", ".join(f"x{i}" for i in range(5)) + " = " + ", ".join(f"x[{i}, l]" for i in range(5)))
+    for statement in _read55("p", "p"):
+        emit(statement)
+    emit("r = m[l] - (h0 * x0 + h1 * x1)")
+    emit("s = var[l]")
+    emit("ph0 = h0 * p00 + h1 * p01")
+    emit("ph1 = h0 * p10 + h1 * p11")
+    emit("s += h0 * ph0 + h1 * ph1")
+    for i in range(2, 5):
+        emit(f"ph{i} = h0 * p{i}0 + h1 * p{i}1")
+    emit("bad[l] = 1.0 if (d and not s > 0.0) else bad[l]")
+    emit("inv_s = 1.0 / s")
+    for i in range(5):
+        emit(f"x[{i}, l] = x{i} + ph{i} * inv_s * r if d else x{i}")
+    for i in range(5):
+        emit(f"k = ph{i} * inv_s")
+        for j in range(i, 5):
+            emit(f"v = p{i}{j} - k * ph{j}")
+            emit(f"p[{i}, {j}, l] = v if d else p{i}{j}")
+            if i != j:
+                emit(f"p[{j}, {i}, l] = v if d else p{j}{i}")
+    emit("chi2[l] = chi2[l] + r * r * inv_s if d else chi2[l]")
+    return "\n".join(lines) + "\n"
+
+
+_INFO_DOC = '''    """Lane l of the backward information filter's step from node k to k−1
+    (`pkf.fit.kalman._backward_information_filter`): with F = f, Q = q (node k's
+    transport) and a = F·(xp − xf) (node k−1's forward prediction and filtered state),
+    y ← y − Y·a, M = (I + Y·Q)⁻¹ (the pivoting solve of `solve5`, its row swaps as
+    selects), Y ← Fᵀ·(M·Y)·F symmetrised, y ← Fᵀ·M·y: the same operations in the same
+    order as the scalar step with dense products (`matvec5`, `matmul55` for
+    `matmul_noise`, `transport_info`, `symmetrise`, `matvec5_t`): bitwise its Y and y for
+    finite inputs. A lane whose solve meets a zero or non-finite pivot gets bad[l] = 1
+    (Y, y then undefined). Straight-line (`pkf.physics.lanes_codegen`); compile the
+    caller with error_model="numpy"."""'''
+
+
+def _solve_lane_statements() -> list[str]:
+    """`solve5_source`'s elimination on scalars a, b, v, the row swaps as selects, and a
+    bad pivot recorded in bad_l instead of returning."""
+    out = []
+    for c in range(5):
+        out.append(f"best = abs(a{c}{c})")
+        out.append(f"pivot = {c}")
+        for r in range(c + 1, 5):
+            out.append(f"cnd = abs(a{r}{c}) > best")
+            out.append(f"best = abs(a{r}{c}) if cnd else best")
+            out.append(f"pivot = {r} if cnd else pivot")
+        out.append("bad_l = bad_l if (best > 0.0 and best < math.inf) else 1.0")
+        for r in range(c + 1, 5):
+            out.append(f"sw = pivot == {r}")
+            pairs = [(f"a{c}{j}", f"a{r}{j}") for j in range(c, 5)]
+            pairs += [(f"b{c}{j}", f"b{r}{j}") for j in range(5)] + [(f"v{c}", f"v{r}")]
+            for x, y in pairs:
+                out.append(f"{x}, {y} = ({y} if sw else {x}), ({x} if sw else {y})")
+        out.append(f"a{c}{c} = 1.0 / a{c}{c}")
+        for r in range(c + 1, 5):
+            out.append(f"e = a{r}{c} * a{c}{c}")
+            for j in range(c + 1, 5):
+                out.append(f"a{r}{j} -= e * a{c}{j}")
+            for j in range(5):
+                out.append(f"b{r}{j} -= e * b{c}{j}")
+            out.append(f"v{r} -= e * v{c}")
+    for i in range(4, -1, -1):
+        for j in range(5):
+            out.append(f"t = b{i}{j}")
+            for k in range(i + 1, 5):
+                out.append(f"t -= a{i}{k} * b{k}{j}")
+            out.append(f"b{i}{j} = t * a{i}{i}")
+        out.append(f"t = v{i}")
+        for k in range(i + 1, 5):
+            out.append(f"t -= a{i}{k} * v{k}")
+        out.append(f"v{i} = t * a{i}{i}")
+    return out
+
+
+def info_step_lane_source() -> str:
+    """Source of ``info_step_lane(info, info_vec, f, q, xp, xf, bad, l)``."""
+    lines = [
+        '@nb.njit(cache=True, inline="always")',
+        "def info_step_lane(info, info_vec, f, q, xp, xf, bad, l):",
+        _INFO_DOC,
+    ]
+
+    def emit(statement: str) -> None:
+        lines.append("    " + statement)
+
+    for statement in _read55("y", "info") + _read55("f", "f") + _read55("q", "q"):
+        emit(statement)
+    emit(", ".join(f"w{i}" for i in range(5)) + " = " + ", ".join(f"info_vec[{i}, l]" for i in range(5)))
+    for i in range(5):
+        emit(f"d{i} = xp[{i}, l] - xf[{i}, l]")
+    for i in range(5):  # shift = F·d
+        emit("s = 0.0")
+        for k in range(5):
+            emit(f"s += f{i}{k} * d{k}")
+        emit(f"g{i} = s")
+    for i in range(5):  # a = Y·Q + I
+        for j in range(5):
+            emit("s = 0.0")
+            for k in range(5):
+                emit(f"s += y{i}{k} * q{k}{j}")
+            emit(f"a{i}{j} = s + 1.0" if i == j else f"a{i}{j} = s")
+    for i in range(5):  # y − Y·shift
+        emit(f"s = w{i}")
+        for j in range(5):
+            emit(f"s -= y{i}{j} * g{j}")
+        emit(f"v{i} = s")
+    for i in range(5):
+        for j in range(5):
+            emit(f"b{i}{j} = y{i}{j}")
+    emit("bad_l = bad[l]")
+    for statement in _solve_lane_statements():
+        emit(statement)
+    emit("bad[l] = bad_l")
+    for i in range(5):  # tmp = (M·Y)·F
+        for j in range(5):
+            emit("s = 0.0")
+            for k in range(5):
+                emit(f"s += b{i}{k} * f{k}{j}")
+            emit(f"t{i}{j} = s")
+    for i in range(5):  # Y = Fᵀ·tmp
+        for j in range(5):
+            emit("s = 0.0")
+            for k in range(5):
+                emit(f"s += f{k}{i} * t{k}{j}")
+            emit(f"o{i}{j} = s")
+    for i in range(5):  # symmetrise
+        emit(f"info[{i}, {i}, l] = o{i}{i}")
+        for j in range(i + 1, 5):
+            emit(f"s = 0.5 * (o{i}{j} + o{j}{i})")
+            emit(f"info[{i}, {j}, l] = s")
+            emit(f"info[{j}, {i}, l] = s")
+    for i in range(5):  # y = Fᵀ·v
+        emit("s = 0.0")
+        for k in range(5):
+            emit(f"s += f{k}{i} * v{k}")
+        emit(f"info_vec[{i}, l] = s")
+    return "\n".join(lines) + "\n"
+
+
 def generated_block() -> str:
     """The whole generated block of `linalg.py`, markers included."""
-    return BEGIN + "\n" + invert_spd_ldl_lane_source() + "\n\n" + solve5_source() + "\n\n" + END + "\n"
+    sources = (
+        invert_spd_ldl_lane_source(),
+        solve5_source(),
+        transport_cov_lane_source(),
+        scalar_update_lane_source(),
+        info_step_lane_source(),
+    )
+    return BEGIN + "\n" + "\n\n".join(sources) + "\n\n" + END + "\n"
 
 
 def linalg_path() -> Path:

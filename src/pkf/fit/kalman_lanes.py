@@ -1,0 +1,612 @@
+"""The Kalman core with GROUP tracks in SIMD lanes: the first fit of every track (issue 18.1).
+
+`pkf.fit.kalman` fits one track at a time; both of its filters are chains of dependent
+steps (the update's division, the solve's five pivots), so one track is latency-bound.
+Here a group of GROUP tracks runs together, in the structure-of-arrays layout of CMS
+mkFit's Matriplex: every matrix is (5, 5, GROUP), lane l the matrix of track l, and the
+dense algebra of a node is one loop over the lanes whose body is straight-line code
+(`pkf.physics.linalg`'s generated `transport_cov_lane`, `scalar_update_lane`,
+`info_step_lane`, `invert_spd_ldl_lane`), which LLVM's loop vectoriser issues as SIMD
+instructions over the tracks. The parts with per-track branches, the extrapolation (its
+F, Q and predicted state; `pkf.fit.extrapolator.extrapolate`, step types, RK4 fallback)
+and the gathers of the measurements, run lane by lane; the pivoting of the backward
+filter's solve is done by selects.
+
+Every lane performs the floating-point operations of `pkf.fit.kalman._fit_once` in the
+same order (numba does not contract to FMA without fastmath), so the states,
+covariances, χ² and node χ² are bitwise those of the scalar core (tests/fit/
+test_kalman_lanes.py: minimum bias, telescope, unequal lengths, failing tracks). The
+products are dense where the scalar core leaves out exact zeros (`transport_cov`,
+`matmul_noise`, `transport_info`): bitwise the same for finite inputs, which is why only
+tracks with a finite seed and seed covariance take the lanes.
+
+Tracks of unequal lengths: the tracks are sorted by their number of nodes, so a group's
+lengths are close; a lane past its track's last node computes on benign numbers (F = 1,
+Q = 0, its last covariance; no measurement) and its results are discarded; the backward
+filter of each lane starts from no information at its own last node. The outlier loop
+stays the shared one (`pkf.fit.driver.fit_one_track`): after the lane fit of a group,
+each track's node χ² are computed (`find_outlier`); a track that failed anywhere (an
+extrapolation, S ≤ 0, a singular solve, a non-positive-definite combination), has an
+outlier to remove, too few hits or a non-finite seed is fitted again from its start by
+the scalar path, which writes every output of that track; the others are done.
+
+Used by `pkf.fit.driver.track_loop` for `KalmanFitter`s with the weighted-mean
+combination or none (forward only) that keep no per-node stages; the RTS smoother and
+`track_states` keep the scalar path.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from pkf.fit.driver import (
+    count_ndf,
+    end_track,
+    find_outlier,
+    fit_one_track,
+    fit_tracks_no_refcount,
+    max_nodes,
+    register_track_loop,
+)
+from pkf.fit.extrapolator import extrapolate
+from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter
+from pkf.fit.status import STATUS_OK
+from pkf.jit import NO_REFCOUNT, stack_array
+from pkf.physics.linalg import (
+    LANES,
+    info_step_lane,
+    invert_spd_ldl_lane,
+    scalar_update_lane,
+    transport_cov_lane,
+)
+
+#: Tracks fitted together, one per SIMD lane (the lanes of `invert_spd_ldl_lane`).
+GROUP = LANES
+
+
+class LaneScratch(NamedTuple):
+    """Per-node scratch of a group, node k of lane l at [k, ..., l]: the transport F and
+    noise Q into node k, the forward prediction and its covariance, the filtered state;
+    per lane: the track, its first node, its number of nodes, alive (1.0: no failure so
+    far), χ²; work: the extrapolator's (6, 5, 5) scratch."""
+
+    jac: np.ndarray
+    noise: np.ndarray
+    pred: np.ndarray
+    pred_cov: np.ndarray
+    filt: np.ndarray
+    filt_cov: np.ndarray
+    track: np.ndarray
+    first: np.ndarray
+    n: np.ndarray
+    alive: np.ndarray
+    chi2: np.ndarray
+    work: np.ndarray
+
+
+def lane_scratch(n_nodes: int, forward_only: bool = False) -> LaneScratch:
+    """`LaneScratch` for tracks of up to `n_nodes` nodes (filtered covariances only if
+    `forward_only`: SMOOTHER_NONE's outputs)."""
+    n_nodes = max(1, n_nodes)
+    return LaneScratch(
+        np.zeros((n_nodes, 5, 5, GROUP)),
+        np.zeros((n_nodes, 5, 5, GROUP)),
+        np.zeros((n_nodes, 5, GROUP)),
+        np.zeros((n_nodes, 5, 5, GROUP)),
+        np.zeros((n_nodes, 5, GROUP)),
+        np.zeros((n_nodes if forward_only else 1, 5, 5, GROUP)),
+        np.zeros(GROUP, dtype=np.int64),
+        np.zeros(GROUP, dtype=np.int64),
+        np.zeros(GROUP, dtype=np.int64),
+        np.zeros(GROUP),
+        np.zeros(GROUP),
+        np.zeros((6, 5, 5)),
+    )
+
+
+@nb.njit(cache=True, inline="always")
+def _benign_lane(state, cov, l):
+    """Lane l of the filtered state and covariance set to 0 and 1 (a lane with no track,
+    or whose track failed: computed on and discarded)."""
+    for i in range(5):
+        state[i, l] = 0.0
+        for j in range(5):
+            cov[i, j, l] = 1.0 if i == j else 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _benign_step(sc, k, l):
+    """Node k's transport of lane l set to F = 1, Q = 0 (no track there)."""
+    for i in range(5):
+        for j in range(5):
+            sc.jac[k, i, j, l] = 1.0 if i == j else 0.0
+            sc.noise[k, i, j, l] = 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _predict_lane(ext, sc, k, l, use_reference, node_z, out_state, state, lin, pstate, jac1, noise1):
+    """The extrapolation of lane l from node k−1 to k (`_fit_once`'s, at the forward
+    filtered state or the previous pass's optimal state): the predicted state into lane l
+    of `state`, F and Q into sc. Returns the extrapolator's status."""
+    lo = sc.first[l]
+    if use_reference:
+        for i in range(5):
+            lin[i] = out_state[lo + k - 1, i]
+    else:
+        for i in range(5):
+            lin[i] = state[i, l]
+    status = extrapolate(ext, lin, node_z[lo + k - 1], node_z[lo + k], pstate, jac1, noise1, sc.work)
+    if status != STATUS_OK:
+        return status
+    if use_reference:
+        for i in range(5):
+            s = 0.0
+            for j in range(5):
+                s += jac1[i, j] * (state[j, l] - lin[j])
+            pstate[i] += s
+    for i in range(5):
+        state[i, l] = pstate[i]
+        for j in range(5):
+            sc.jac[k, i, j, l] = jac1[i, j]
+            sc.noise[k, i, j, l] = noise1[i, j]
+    return STATUS_OK
+
+
+@nb.njit(cache=True, inline="always")
+def _gather_measurement(sc, k, j, l, node_n_meas, node_hx, node_hy, node_m, node_sigma, hx, hy, m, var, do, squared):
+    """Measurement j of lane l's node k into the lane vectors (do[l] = 0: none); var[l]
+    its σ² if `squared` (as `_fit_once` computes it), else σ."""
+    node = sc.first[l] + k
+    if k < sc.n[l] and sc.alive[l] != 0.0 and j < node_n_meas[node]:
+        do[l] = 1.0
+        hx[l] = node_hx[node, j]
+        hy[l] = node_hy[node, j]
+        m[l] = node_m[node, j]
+        var[l] = node_sigma[node, j] ** 2 if squared else node_sigma[node, j]
+    else:
+        do[l] = 0.0
+        hx[l] = 0.0
+        hy[l] = 0.0
+        m[l] = 0.0
+        var[l] = 1.0
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _forward_lanes(
+    ext,
+    sc,
+    n_max,
+    use_reference,
+    smoother,
+    node_z,
+    node_n_meas,
+    node_hx,
+    node_hy,
+    node_m,
+    node_sigma,
+    seeds,
+    seed_covs,
+    out_state,
+    out_cov,
+):
+    """The forward filter of `_fit_once` for the group's lanes: predictions, their
+    covariances, the filtered states and the χ² into sc; with SMOOTHER_NONE the filtered
+    states and covariances into out_state/out_cov once the pass is done (it reads the last
+    pass's), for the lanes without failure. A failing lane gets alive = 0."""
+    state = stack_array((5, GROUP))
+    cov = stack_array((5, 5, GROUP))
+    hx = stack_array((GROUP,))
+    hy = stack_array((GROUP,))
+    m = stack_array((GROUP,))
+    var = stack_array((GROUP,))
+    do = stack_array((GROUP,))
+    bad = stack_array((GROUP,))
+    lin = stack_array((5,))
+    pstate = stack_array((5,))
+    jac1 = stack_array((5, 5))
+    noise1 = stack_array((5, 5))
+    for l in range(GROUP):
+        sc.chi2[l] = 0.0
+        bad[l] = 0.0
+        if sc.alive[l] == 0.0:
+            _benign_lane(state, cov, l)
+            continue
+        t = sc.track[l]
+        for i in range(5):
+            state[i, l] = out_state[sc.first[l], i] if use_reference else seeds[t, i]
+            for j in range(5):
+                cov[i, j, l] = seed_covs[t, i, j]
+    for k in range(n_max):
+        if k > 0:
+            for l in range(GROUP):  # the extrapolations, lane by lane
+                if k < sc.n[l] and sc.alive[l] != 0.0:
+                    if (
+                        _predict_lane(ext, sc, k, l, use_reference, node_z, out_state, state, lin, pstate, jac1, noise1)
+                        == STATUS_OK
+                    ):
+                        continue
+                    sc.alive[l] = 0.0
+                    _benign_lane(state, cov, l)
+                _benign_step(sc, k, l)
+            jac_k = sc.jac[k]
+            noise_k = sc.noise[k]
+            pcov_k = sc.pred_cov[k]
+            for l in range(GROUP):  # P = F·P·Fᵀ + Q, SIMD over the lanes
+                transport_cov_lane(jac_k, cov, noise_k, cov, pcov_k, l)
+        else:
+            for i in range(5):
+                for j in range(5):
+                    for l in range(GROUP):
+                        sc.pred_cov[0, i, j, l] = cov[i, j, l]
+        for i in range(5):
+            for l in range(GROUP):
+                sc.pred[k, i, l] = state[i, l]
+        for jm in range(2):  # the measurement updates, SIMD over the lanes
+            for l in range(GROUP):
+                _gather_measurement(
+                    sc, k, jm, l, node_n_meas, node_hx, node_hy, node_m, node_sigma, hx, hy, m, var, do, True
+                )
+            for l in range(GROUP):
+                scalar_update_lane(state, cov, hx, hy, m, var, do, sc.chi2, bad, l)
+        for l in range(GROUP):
+            if bad[l] != 0.0 and sc.alive[l] != 0.0:
+                sc.alive[l] = 0.0
+                _benign_lane(state, cov, l)
+        for i in range(5):
+            for l in range(GROUP):
+                sc.filt[k, i, l] = state[i, l]
+        if smoother == SMOOTHER_NONE:
+            for i in range(5):
+                for j in range(5):
+                    for l in range(GROUP):
+                        sc.filt_cov[k, i, j, l] = cov[i, j, l]
+    if smoother == SMOOTHER_NONE:  # the outputs once the pass is done (the next reads them)
+        for l in range(GROUP):
+            if sc.alive[l] != 0.0:
+                for k in range(sc.n[l]):
+                    node = sc.first[l] + k
+                    for i in range(5):
+                        out_state[node, i] = sc.filt[k, i, l]
+                        for j in range(5):
+                            out_cov[node, i, j] = sc.filt_cov[k, i, j, l]
+
+
+@nb.njit(cache=True, inline="always")
+def _add_information_lane(info, info_vec, hx, hy, m, sigma, x, do, l):
+    """`pkf.fit.kalman.add_node_information` of one measurement on lane l (σ = sigma[l];
+    residual against x, the forward prediction), where do[l] ≠ 0: the same operations."""
+    d = do[l] != 0.0
+    w = 1.0 / (sigma[l] * sigma[l])
+    h0 = hx[l]
+    h1 = hy[l]
+    r = m[l] - (h0 * x[0, l] + h1 * x[1, l])
+    i00 = info[0, 0, l]
+    i01 = info[0, 1, l]
+    i10 = info[1, 0, l]
+    i11 = info[1, 1, l]
+    v0 = info_vec[0, l]
+    v1 = info_vec[1, l]
+    info[0, 0, l] = i00 + h0 * h0 * w if d else i00
+    info[0, 1, l] = i01 + h0 * h1 * w if d else i01
+    info[1, 0, l] = i10 + h0 * h1 * w if d else i10
+    info[1, 1, l] = i11 + h1 * h1 * w if d else i11
+    info_vec[0, l] = v0 + h0 * r * w if d else v0
+    info_vec[1, l] = v1 + h1 * r * w if d else v1
+
+
+@nb.njit(cache=True, inline="always")
+def _combine_lane(p, info, x_p, info_vec, a, c, x, bad_pivot, bad_diag, l):
+    """`pkf.fit.kalman._combine_nodes`'s weighted mean for lane l: C = (P⁻¹ + Y)⁻¹ into c,
+    x = x_p + C·y into x; bad_pivot[l]/bad_diag[l] = 1 where P or P⁻¹ + Y is not positive
+    definite / C has a diagonal element ≤ 0."""
+    bad_pivot[l] = 0.0
+    invert_spd_ldl_lane(p, c, bad_pivot, l)  # P⁻¹
+    for i in range(5):
+        for j in range(5):
+            a[i, j, l] = c[i, j, l] + info[i, j, l]
+    invert_spd_ldl_lane(a, c, bad_pivot, l)  # C = (P⁻¹ + Y)⁻¹
+    bad = 0.0
+    for i in range(5):
+        s = x_p[i, l]
+        for k in range(5):
+            s += c[i, k, l] * info_vec[k, l]
+        x[i, l] = s
+        bad = bad if c[i, i, l] > 0.0 else 1.0
+    bad_diag[l] = bad
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma, out_state, out_cov):
+    """The backward information filter and the weighted-mean combination of
+    `_backward_information_filter` for the group's lanes, node by node downstream →
+    upstream, each lane's (Y, y) starting empty at its own last node; the optimal states
+    into out_state/out_cov. A failing lane gets alive = 0."""
+    info = stack_array((5, 5, GROUP))
+    info_vec = stack_array((5, GROUP))
+    a = stack_array((5, 5, GROUP))
+    c = stack_array((5, 5, GROUP))
+    x = stack_array((5, GROUP))
+    hx = stack_array((GROUP,))
+    hy = stack_array((GROUP,))
+    m = stack_array((GROUP,))
+    sigma = stack_array((GROUP,))
+    do = stack_array((GROUP,))
+    bad = stack_array((GROUP,))
+    bad_diag = stack_array((GROUP,))
+    for l in range(GROUP):
+        bad[l] = 0.0
+    for k in range(n_max - 1, -1, -1):
+        for l in range(GROUP):
+            if k >= sc.n[l] - 1:  # at or past the track's last node: no information yet
+                for i in range(5):
+                    info_vec[i, l] = 0.0
+                    for j in range(5):
+                        info[i, j, l] = 0.0
+        pred_k = sc.pred[k]
+        for jm in range(2):
+            for l in range(GROUP):
+                _gather_measurement(
+                    sc, k, jm, l, node_n_meas, node_hx, node_hy, node_m, node_sigma, hx, hy, m, sigma, do, False
+                )
+            for l in range(GROUP):
+                _add_information_lane(info, info_vec, hx, hy, m, sigma, pred_k, do, l)
+        pcov_k = sc.pred_cov[k]
+        for l in range(GROUP):  # the weighted mean at node k, SIMD over the lanes
+            _combine_lane(pcov_k, info, pred_k, info_vec, a, c, x, bad, bad_diag, l)
+        for l in range(GROUP):
+            if k < sc.n[l] and sc.alive[l] != 0.0:
+                if bad[l] != 0.0 or bad_diag[l] != 0.0:
+                    sc.alive[l] = 0.0
+                    continue
+                node = sc.first[l] + k
+                for i in range(5):
+                    out_state[node, i] = x[i, l]
+                    for j in range(5):
+                        out_cov[node, i, j] = c[i, j, l]
+        if k == 0:
+            break
+        jac_k = sc.jac[k]
+        noise_k = sc.noise[k]
+        pred_prev = sc.pred[k - 1]
+        filt_prev = sc.filt[k - 1]
+        for l in range(GROUP):  # (Y, y) from node k to k − 1, SIMD over the lanes
+            bad[l] = 0.0
+            info_step_lane(info, info_vec, jac_k, noise_k, pred_prev, filt_prev, bad, l)
+        for l in range(GROUP):
+            if bad[l] != 0.0 and k < sc.n[l]:
+                sc.alive[l] = 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _start_group(sc, order, g0, n_grouped, offsets, out_active):
+    """Lanes of the group starting at order[g0]; returns the group's largest track length."""
+    n_max = 0
+    for l in range(GROUP):
+        idx = g0 + l
+        if idx < n_grouped:
+            t = order[idx]
+            lo = offsets[t]
+            hi = offsets[t + 1]
+            sc.track[l] = t
+            sc.first[l] = lo
+            sc.n[l] = hi - lo
+            sc.alive[l] = 1.0
+            out_active[lo:hi] = True
+            n_max = max(n_max, hi - lo)
+        else:
+            sc.track[l] = -1
+            sc.first[l] = 0
+            sc.n[l] = 0
+            sc.alive[l] = 0.0
+    return n_max
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def fit_tracks_lanes(
+    fitter,
+    order,
+    n_grouped,
+    sc,
+    offsets,
+    node_z,
+    node_n_meas,
+    node_hx,
+    node_hy,
+    node_m,
+    node_sigma,
+    seeds,
+    seed_covs,
+    outlier_cuts,
+    max_outliers,
+    out_state,
+    out_cov,
+    out_node_chi2,
+    out_active,
+    out_status,
+    out_chi2,
+    out_ndf,
+    out_n_outliers,
+):
+    """`pkf.fit.driver._fit_tracks_loop` for a `KalmanFitter`, the first fits of the tracks
+    order[:n_grouped] (sorted by length) GROUP at a time in lanes (all `n_iterations`
+    passes), the others, and those whose lane fit failed or found an outlier to remove,
+    through `fit_one_track`. Same arguments and outputs as `fit_tracks`, plus order,
+    n_grouped and the scratch sc (`lane_scratch`)."""
+    for g0 in range(0, n_grouped, GROUP):
+        n_max = _start_group(sc, order, g0, n_grouped, offsets, out_active)
+        for it in range(max(1, fitter.n_iterations)):
+            _forward_lanes(
+                fitter.ext,
+                sc,
+                n_max,
+                it > 0,
+                fitter.smoother,
+                node_z,
+                node_n_meas,
+                node_hx,
+                node_hy,
+                node_m,
+                node_sigma,
+                seeds,
+                seed_covs,
+                out_state,
+                out_cov,
+            )
+            if fitter.smoother == SMOOTHER_WEIGHTED_MEAN:
+                _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma, out_state, out_cov)
+        for l in range(GROUP):
+            t = sc.track[l]
+            if t < 0:
+                continue
+            lo = offsets[t]
+            hi = offsets[t + 1]
+            status = STATUS_OK
+            worst = -1
+            if sc.alive[l] != 0.0:
+                status, worst = find_outlier(
+                    out_state[lo:hi],
+                    out_cov[lo:hi],
+                    node_n_meas[lo:hi],
+                    node_hx[lo:hi],
+                    node_hy[lo:hi],
+                    node_m[lo:hi],
+                    node_sigma[lo:hi],
+                    out_active[lo:hi],
+                    outlier_cuts,
+                    out_node_chi2[lo:hi],
+                    fitter.measurement_only_fallback,
+                )
+            if sc.alive[l] == 0.0 or status != STATUS_OK or (max_outliers > 0 and worst >= 0):
+                fit_one_track(
+                    fitter,
+                    t,
+                    offsets,
+                    node_z,
+                    node_n_meas,
+                    node_hx,
+                    node_hy,
+                    node_m,
+                    node_sigma,
+                    seeds,
+                    seed_covs,
+                    outlier_cuts,
+                    max_outliers,
+                    out_state,
+                    out_cov,
+                    out_node_chi2,
+                    out_active,
+                    out_status,
+                    out_chi2,
+                    out_ndf,
+                    out_n_outliers,
+                )
+                continue
+            end_track(fitter, t, lo, hi, STATUS_OK, out_state[lo:hi], out_cov[lo:hi])
+            out_status[t] = STATUS_OK
+            out_chi2[t] = sc.chi2[l]
+            out_ndf[t] = count_ndf(node_n_meas[lo:hi], out_active[lo:hi])
+            out_n_outliers[t] = 0
+    for idx in range(n_grouped, order.size):
+        fit_one_track(
+            fitter,
+            order[idx],
+            offsets,
+            node_z,
+            node_n_meas,
+            node_hx,
+            node_hy,
+            node_m,
+            node_sigma,
+            seeds,
+            seed_covs,
+            outlier_cuts,
+            max_outliers,
+            out_state,
+            out_cov,
+            out_node_chi2,
+            out_active,
+            out_status,
+            out_chi2,
+            out_ndf,
+            out_n_outliers,
+        )
+
+
+def lane_order(offsets: np.ndarray, node_n_meas: np.ndarray, seeds: np.ndarray, seed_covs: np.ndarray):
+    """(order, n_grouped): the tracks that take the lanes (ndf > 0 with every node active,
+    finite seed and seed covariance), sorted by number of nodes, then the others."""
+    lengths = np.diff(offsets)
+    cumulative = np.concatenate([[0], np.cumsum(node_n_meas)])
+    dims = cumulative[offsets[1:]] - cumulative[offsets[:-1]]
+    finite = np.isfinite(seeds).all(axis=1) & np.isfinite(seed_covs).all(axis=(1, 2))
+    lanes = (dims - 5 > 0) & finite
+    grouped = np.flatnonzero(lanes)
+    grouped = grouped[np.argsort(lengths[grouped], kind="stable")]
+    return np.concatenate([grouped, np.flatnonzero(~lanes)]).astype(np.int64), grouped.size
+
+
+def fit_tracks_in_lanes(
+    fitter,
+    offsets,
+    node_z,
+    node_n_meas,
+    node_hx,
+    node_hy,
+    node_m,
+    node_sigma,
+    seeds,
+    seed_covs,
+    outlier_cuts,
+    max_outliers,
+    out_state,
+    out_cov,
+    out_node_chi2,
+    out_active,
+    out_status,
+    out_chi2,
+    out_ndf,
+    out_n_outliers,
+):
+    """`fit_tracks`'s signature and outputs, run by `fit_tracks_lanes` (the order of the
+    tracks and the lane scratch made here)."""
+    order, n_grouped = lane_order(offsets, node_n_meas, seeds, seed_covs)
+    fit_tracks_lanes(
+        fitter,
+        order,
+        n_grouped,
+        lane_scratch(max_nodes(offsets), fitter.smoother == SMOOTHER_NONE),
+        offsets,
+        node_z,
+        node_n_meas,
+        node_hx,
+        node_hy,
+        node_m,
+        node_sigma,
+        seeds,
+        seed_covs,
+        outlier_cuts,
+        max_outliers,
+        out_state,
+        out_cov,
+        out_node_chi2,
+        out_active,
+        out_status,
+        out_chi2,
+        out_ndf,
+        out_n_outliers,
+    )
+
+
+def _choose_loop(fitter: KalmanFitter):
+    """The lane loop for fitters it serves (weighted mean or forward only, no stages kept)."""
+    if fitter.smoother not in (SMOOTHER_WEIGHTED_MEAN, SMOOTHER_NONE) or fitter.stages.predicted.shape[0] > 0:
+        return None
+    return fit_tracks_in_lanes
+
+
+register_track_loop(KalmanFitter, _choose_loop)
+
+__all__ = ["GROUP", "fit_tracks_in_lanes", "fit_tracks_lanes", "fit_tracks_no_refcount", "lane_scratch"]
