@@ -129,25 +129,9 @@ def register_fitter(fitter_class: type, begin, fit, end, allocates: bool = True)
         _NOT_ALLOCATING.add(fitter_class)
 
 
-#: Fitter class → its own track loop (`register_track_loop`), e.g. the Kalman core's tracks in SIMD lanes.
-_OWN_LOOPS: dict[type, object] = {}
-
-
-def register_track_loop(fitter_class: type, choose) -> None:
-    """Make `choose(fitter)` pick the track loop of fitters of `fitter_class`: a function
-    with the signature of `fit_tracks`, or None for the shared loop."""
-    _OWN_LOOPS[fitter_class] = choose
-
-
-def track_loop(fitter, own: bool = True):
-    """The track loop for `fitter`: its class's own (`register_track_loop`) if it has one
-    that takes this fitter and `own`; else `fit_tracks_no_refcount` if its class was
-    registered with allocates=False, else `fit_tracks`. The own loops give the results of
-    the shared one (bitwise; tests/fit/test_kalman_lanes.py for the Kalman core)."""
-    choose = _OWN_LOOPS.get(type(fitter)) if own else None
-    loop = choose(fitter) if choose is not None else None
-    if loop is not None:
-        return loop
+def track_loop(fitter):
+    """The compiled track loop for `fitter`: `fit_tracks_no_refcount` if its class was
+    registered with allocates=False, else `fit_tracks`."""
     return fit_tracks_no_refcount if type(fitter) in _NOT_ALLOCATING else fit_tracks
 
 

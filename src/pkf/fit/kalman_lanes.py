@@ -1,38 +1,47 @@
-"""The Kalman core with GROUP tracks in SIMD lanes: the first fit of every track (issue 18.1).
+"""The Kalman core's backward filter with GROUP tracks in SIMD lanes (issue 18.1; opt-in, measured slower).
 
 `pkf.fit.kalman` fits one track at a time; both of its filters are chains of dependent
 steps (the update's division, the solve's five pivots), so one track is latency-bound.
-Here a group of GROUP tracks runs together, in the structure-of-arrays layout of CMS
+Here a group of GROUP tracks runs together in the structure-of-arrays layout of CMS
 mkFit's Matriplex: every matrix is (5, 5, GROUP), lane l the matrix of track l, and the
-dense algebra of a node is one loop over the lanes whose body is straight-line code
-(`pkf.physics.linalg`'s generated `transport_cov_lane`, `scalar_update_lane`,
-`info_step_lane`, `invert_spd_ldl_lane`), which LLVM's loop vectoriser issues as SIMD
-instructions over the tracks. The parts with per-track branches, the extrapolation (its
-F, Q and predicted state; `pkf.fit.extrapolator.extrapolate`, step types, RK4 fallback)
-and the gathers of the measurements, run lane by lane; the pivoting of the backward
-filter's solve is done by selects.
+backward information filter's step (`info_step_lane`: F·(x_p − x_f), I + Y·Q, the
+pivoting solve with its row swaps as selects, Fᵀ·(M·Y)·F, Fᵀ·M·y) and the weighted-mean
+combination (`_combine_lane`, `invert_spd_ldl_lane`) are loops over the lanes whose body
+is straight-line code (`pkf.physics.lanes_codegen`), issued as SIMD over the tracks. The
+forward filter of each track is `_fit_once`'s own (SMOOTHER_NONE), its per-node results
+(F, Q, prediction and its covariance, filtered state) then copied into the track's lane.
 
-Every lane performs the floating-point operations of `pkf.fit.kalman._fit_once` in the
-same order (numba does not contract to FMA without fastmath), so the states,
-covariances, χ² and node χ² are bitwise those of the scalar core (tests/fit/
-test_kalman_lanes.py: minimum bias, telescope, unequal lengths, failing tracks). The
-products are dense where the scalar core leaves out exact zeros (`transport_cov`,
-`matmul_noise`, `transport_info`): bitwise the same for finite inputs, which is why only
-tracks with a finite seed and seed covariance take the lanes.
+Every lane performs the floating-point operations of the scalar core in the same order
+(numba does not contract to FMA without fastmath), with dense products where the scalar
+core leaves out exact zeros (`matmul_noise`, `transport_info`: bitwise the same for
+finite inputs, hence only tracks with a finite seed and seed covariance take the
+lanes): states, covariances, χ², node χ², status are bitwise those of
+`pkf.fit.driver.fit_tracks_no_refcount` (tests/fit/test_kalman_lanes.py; and on the
+8,907 minimum-bias long tracks of benchmarks/fit_core.py, parametrized, 1 and 2 passes,
+max_outliers 0 and 3, weighted mean and forward only, two seeds broken on purpose).
 
-Tracks of unequal lengths: the tracks are sorted by their number of nodes, so a group's
-lengths are close; a lane past its track's last node computes on benign numbers (F = 1,
-Q = 0, its last covariance; no measurement) and its results are discarded; the backward
-filter of each lane starts from no information at its own last node. The outlier loop
-stays the shared one (`pkf.fit.driver.fit_one_track`): after the lane fit of a group,
-each track's node χ² are computed (`find_outlier`); a track that failed anywhere (an
-extrapolation, S ≤ 0, a singular solve, a non-positive-definite combination), has an
-outlier to remove, too few hits or a non-finite seed is fitted again from its start by
-the scalar path, which writes every output of that track; the others are done.
+Tracks of unequal lengths: sorted by number of nodes, so a group's lengths are close;
+each lane's (Y, y) starts empty at its own last node, and a lane past its track's end
+computes on what is there and is discarded. The outlier loop stays the shared one: after
+a group's lane fit, each track's node χ² (`find_outlier`); a track that failed anywhere,
+has an outlier to remove (max_outliers > 0), too few hits or a non-finite seed is fitted
+again from its start by `pkf.fit.driver.fit_one_track`, which writes all its outputs.
 
-Used by `pkf.fit.driver.track_loop` for `KalmanFitter`s with the weighted-mean
-combination or none (forward only) that keep no per-node stages; the RTS smoother and
-`track_states` keep the scalar path.
+Measured (fit_core's loop, minimum bias, 257,055 nodes, one pass, CPU time, min of 5, the
+scalar loop and this one in the same process): backward filter + combination 160–190 →
+50–70 ns/node (×0.3–0.4), but the forward side costs more than that gains: full fit
+390–397 → 442–472 ns/node, the forward-only loop 211–232 → 366–382. Tried for the forward
+(all bitwise identical, all slower, git history of branch fit19): the forward filter in
+lanes too (F·P·Fᵀ + Q dense and the update with selects, SIMD over the tracks: 235 → 379),
+the scalar forward writing straight into the lanes track by track (→ 434) or node by node
+over the lanes (→ 380), and `_fit_once` then a copy into the lanes (→ 366; 338 with the
+tracks in their original order instead of sorted by length). What costs the +150 ns/node
+in the forward side was not found in the time (the copy into lanes is ~85 stores per
+node, each to a different cache line of the (5, 5, GROUP) layout; track order matters
+~30–60 ns/node). Hence not the production path: `pkf.fit.driver.track_loop` keeps the
+scalar loop; `fit_tracks_in_lanes` (same signature and outputs as `fit_tracks`) is here
+for the next attempt, e.g. a lane layout per track block written contiguously, or the
+lanes' forward with the structured F·P·Fᵀ of the step types.
 """
 
 from __future__ import annotations
@@ -49,13 +58,11 @@ from pkf.fit.driver import (
     fit_one_track,
     fit_tracks_no_refcount,
     max_nodes,
-    register_track_loop,
 )
-from pkf.fit.extrapolator import extrapolate
-from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter, scalar_update
-from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
+from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, _fit_once
+from pkf.fit.status import STATUS_OK
 from pkf.jit import NO_REFCOUNT, stack_array
-from pkf.physics.linalg import LANES, copy5, copy55, info_step_lane, invert_spd_ldl_lane, transport_cov
+from pkf.physics.linalg import LANES, copy5, info_step_lane, invert_spd_ldl_lane
 
 #: Tracks fitted together, one per SIMD lane (the lanes of `invert_spd_ldl_lane`).
 GROUP = LANES
@@ -72,7 +79,6 @@ class LaneScratch(NamedTuple):
     pred: np.ndarray
     pred_cov: np.ndarray
     filt: np.ndarray
-    filt_cov: np.ndarray
     track: np.ndarray
     first: np.ndarray
     n: np.ndarray
@@ -81,9 +87,8 @@ class LaneScratch(NamedTuple):
     work: np.ndarray
 
 
-def lane_scratch(n_nodes: int, forward_only: bool = False) -> LaneScratch:
-    """`LaneScratch` for tracks of up to `n_nodes` nodes (filtered covariances only if
-    `forward_only`: SMOOTHER_NONE's outputs)."""
+def lane_scratch(n_nodes: int) -> LaneScratch:
+    """`LaneScratch` for tracks of up to `n_nodes` nodes."""
     n_nodes = max(1, n_nodes)
     return LaneScratch(
         np.zeros((n_nodes, 5, 5, GROUP)),
@@ -91,7 +96,6 @@ def lane_scratch(n_nodes: int, forward_only: bool = False) -> LaneScratch:
         np.zeros((n_nodes, 5, GROUP)),
         np.zeros((n_nodes, 5, 5, GROUP)),
         np.zeros((n_nodes, 5, GROUP)),
-        np.zeros((n_nodes if forward_only else 1, 5, 5, GROUP)),
         np.zeros(GROUP, dtype=np.int64),
         np.zeros(GROUP, dtype=np.int64),
         np.zeros(GROUP, dtype=np.int64),
@@ -101,157 +105,78 @@ def lane_scratch(n_nodes: int, forward_only: bool = False) -> LaneScratch:
     )
 
 
-@nb.njit(cache=True, inline="always")
-def _forward_node(
-    ext,
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _forward_scalar(
+    f,
     sc,
     l,
-    k,
     use_reference,
-    smoother,
+    offsets,
     node_z,
     node_n_meas,
     node_hx,
     node_hy,
     node_m,
     node_sigma,
-    out_state,
-    state,
-    cov,
-    lin,
-    tmp,
-    jac,
-    noise,
-    pred,
-    work,
-):
-    """Node k of `_fit_once`'s forward filter (every node active) for the track of lane l,
-    its filtered state and covariance in `state`, `cov` (updated in place), with the same
-    functions (`extrapolate`, `transport_cov`, `scalar_update`: bitwise its numbers):
-    node k's F, Q, prediction, its covariance and the filtered state (with SMOOTHER_NONE
-    its covariance too) into lane l of sc, the χ² increments added to sc.chi2[l]. Returns
-    the status. lin … work: scratch."""
-    lo = sc.first[l]
-    if k > 0:
-        if use_reference:
-            copy5(out_state[lo + k - 1], lin)
-        else:
-            copy5(state, lin)
-        status = extrapolate(ext, lin, node_z[lo + k - 1], node_z[lo + k], pred, jac, noise, work)
-        if status != STATUS_OK:
-            return status
-        if use_reference:
-            for i in range(5):
-                s = 0.0
-                for j in range(5):
-                    s += jac[i, j] * (state[j] - lin[j])
-                pred[i] += s
-        transport_cov(jac, cov, tmp, cov)
-        for i in range(5):
-            for j in range(5):
-                cov[i, j] += noise[i, j]
-                sc.jac[k, i, j, l] = jac[i, j]
-                sc.noise[k, i, j, l] = noise[i, j]
-        copy5(pred, state)
-    for i in range(5):
-        sc.pred[k, i, l] = state[i]
-        for j in range(5):
-            sc.pred_cov[k, i, j, l] = cov[i, j]
-    node = lo + k
-    for j in range(node_n_meas[node]):
-        increment, s = scalar_update(
-            state, cov, node_hx[node, j], node_hy[node, j], node_m[node, j], node_sigma[node, j] ** 2
-        )
-        if not s > 0.0:
-            return STATUS_NOT_POSITIVE_DEFINITE
-        sc.chi2[l] += increment
-    for i in range(5):
-        sc.filt[k, i, l] = state[i]
-    if smoother == SMOOTHER_NONE:
-        for i in range(5):
-            for j in range(5):
-                sc.filt_cov[k, i, j, l] = cov[i, j]
-    return STATUS_OK
-
-
-@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _forward_group(
-    ext,
-    sc,
-    n_max,
-    use_reference,
-    smoother,
-    node_z,
-    node_n_meas,
-    node_hx,
-    node_hy,
-    node_m,
-    node_sigma,
+    out_active,
     seeds,
     seed_covs,
     out_state,
+    out_cov,
 ):
-    """The forward filters of the group's tracks, node by node, each node's lanes one
-    after the other (`_forward_node`; so that node k's rows of sc, written lane by lane,
-    stay in cache: track by track they cost +200 ns/node in write misses). A failing
-    lane gets alive = 0."""
-    states = stack_array((GROUP, 5))
-    covs = stack_array((GROUP, 5, 5))
-    lin = stack_array((5,))
-    tmp = stack_array((5, 5))
-    jac = stack_array((5, 5))
-    noise = stack_array((5, 5))
-    pred = stack_array((5,))
-    work = stack_array((6, 5, 5))
-    for l in range(GROUP):
-        sc.chi2[l] = 0.0
-        if sc.alive[l] != 0.0:
-            t = sc.track[l]
-            for i in range(5):
-                states[l, i] = out_state[sc.first[l], i] if use_reference else seeds[t, i]
-            copy55(seed_covs[t], covs[l])
-    for k in range(n_max):
-        for l in range(GROUP):
-            if k < sc.n[l] and sc.alive[l] != 0.0:
-                status = _forward_node(
-                    ext,
-                    sc,
-                    l,
-                    k,
-                    use_reference,
-                    smoother,
-                    node_z,
-                    node_n_meas,
-                    node_hx,
-                    node_hy,
-                    node_m,
-                    node_sigma,
-                    out_state,
-                    states[l],
-                    covs[l],
-                    lin,
-                    tmp,
-                    jac,
-                    noise,
-                    pred,
-                    work,
-                )
-                if status != STATUS_OK:
-                    sc.alive[l] = 0.0
-
-
-@nb.njit(cache=True, inline="always")
-def _forward_outputs(sc, out_state, out_cov):
-    """SMOOTHER_NONE: the filtered states and covariances of the lanes without failure
-    into out_state/out_cov (once every pass is done: a pass reads the last one's)."""
-    for l in range(GROUP):
-        if sc.alive[l] != 0.0:
-            for k in range(sc.n[l]):
-                node = sc.first[l] + k
-                for i in range(5):
-                    out_state[node, i] = sc.filt[k, i, l]
-                    for j in range(5):
-                        out_cov[node, i, j] = sc.filt_cov[k, i, j, l]
+    """The forward filter of lane l's track by `_fit_once` itself (SMOOTHER_NONE: its
+    filtered states into out_state), its per-node results then copied into lane l of sc.
+    False if it failed."""
+    t = sc.track[l]
+    lo = offsets[t]
+    hi = offsets[t + 1]
+    n = hi - lo
+    if use_reference:
+        for k in range(n):
+            copy5(out_state[lo + k], f.ref[k])
+    status, chi2 = _fit_once(
+        f.ext,
+        node_z[lo:hi],
+        node_n_meas[lo:hi],
+        node_hx[lo:hi],
+        node_hy[lo:hi],
+        node_m[lo:hi],
+        node_sigma[lo:hi],
+        out_active[lo:hi],
+        seeds[t],
+        seed_covs[t],
+        use_reference,
+        f.ref,
+        f.pred,
+        f.pred_cov,
+        f.filt,
+        f.filt_cov,
+        f.jac,
+        f.noise,
+        SMOOTHER_NONE,
+        out_state[lo:hi],
+        out_cov[lo:hi],
+        f.mats,
+        f.vec5,
+        f.perm,
+        f.info,
+        f.info_vec,
+        f.pred_lanes,
+        f.pred_cov_lanes,
+        True,
+    )
+    if status != STATUS_OK:
+        return False
+    sc.chi2[l] = chi2
+    for k in range(n):
+        for i in range(5):
+            sc.pred[k, i, l] = f.pred[k, i]
+            sc.filt[k, i, l] = f.filt[k, i]
+            for j in range(5):
+                sc.pred_cov[k, i, j, l] = f.pred_cov[k, i, j]
+                sc.jac[k, i, j, l] = f.jac[k, i, j]
+                sc.noise[k, i, j, l] = f.noise[k, i, j]
+    return True
 
 
 @nb.njit(cache=True, inline="always")
@@ -437,26 +362,29 @@ def fit_tracks_lanes(
     for g0 in range(0, n_grouped, GROUP):
         n_max = _start_group(sc, order, g0, n_grouped, offsets, out_active)
         for it in range(max(1, fitter.n_iterations)):
-            _forward_group(
-                fitter.ext,
-                sc,
-                n_max,
-                it > 0,
-                fitter.smoother,
-                node_z,
-                node_n_meas,
-                node_hx,
-                node_hy,
-                node_m,
-                node_sigma,
-                seeds,
-                seed_covs,
-                out_state,
-            )
+            for l in range(GROUP):
+                if sc.alive[l] != 0.0:
+                    if not _forward_scalar(
+                        fitter,
+                        sc,
+                        l,
+                        it > 0,
+                        offsets,
+                        node_z,
+                        node_n_meas,
+                        node_hx,
+                        node_hy,
+                        node_m,
+                        node_sigma,
+                        out_active,
+                        seeds,
+                        seed_covs,
+                        out_state,
+                        out_cov,
+                    ):
+                        sc.alive[l] = 0.0
             if fitter.smoother == SMOOTHER_WEIGHTED_MEAN:
                 _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma, out_state, out_cov)
-            else:
-                _forward_outputs(sc, out_state, out_cov)
         for l in range(GROUP):
             t = sc.track[l]
             if t < 0:
@@ -570,14 +498,39 @@ def fit_tracks_in_lanes(
     out_ndf,
     out_n_outliers,
 ):
-    """`fit_tracks`'s signature and outputs, run by `fit_tracks_lanes` (the order of the
-    tracks and the lane scratch made here)."""
+    """`fit_tracks`'s signature and outputs for a `KalmanFitter`, run by `fit_tracks_lanes`
+    (the order of the tracks and the lane scratch made here) if it combines by weighted
+    mean or not at all and keeps no node stages, else by `fit_tracks_no_refcount`."""
+    if fitter.smoother not in (SMOOTHER_WEIGHTED_MEAN, SMOOTHER_NONE) or fitter.stages.predicted.shape[0] > 0:
+        fit_tracks_no_refcount(
+            fitter,
+            offsets,
+            node_z,
+            node_n_meas,
+            node_hx,
+            node_hy,
+            node_m,
+            node_sigma,
+            seeds,
+            seed_covs,
+            outlier_cuts,
+            max_outliers,
+            out_state,
+            out_cov,
+            out_node_chi2,
+            out_active,
+            out_status,
+            out_chi2,
+            out_ndf,
+            out_n_outliers,
+        )
+        return
     order, n_grouped = lane_order(offsets, node_n_meas, seeds, seed_covs)
     fit_tracks_lanes(
         fitter,
         order,
         n_grouped,
-        lane_scratch(max_nodes(offsets), fitter.smoother == SMOOTHER_NONE),
+        lane_scratch(max_nodes(offsets)),
         offsets,
         node_z,
         node_n_meas,
@@ -600,13 +553,4 @@ def fit_tracks_in_lanes(
     )
 
 
-def _choose_loop(fitter: KalmanFitter):
-    """The lane loop for fitters it serves (weighted mean or forward only, no stages kept)."""
-    if fitter.smoother not in (SMOOTHER_WEIGHTED_MEAN, SMOOTHER_NONE) or fitter.stages.predicted.shape[0] > 0:
-        return None
-    return fit_tracks_in_lanes
-
-
-register_track_loop(KalmanFitter, _choose_loop)
-
-__all__ = ["GROUP", "fit_tracks_in_lanes", "fit_tracks_lanes", "fit_tracks_no_refcount", "lane_scratch"]
+__all__ = ["GROUP", "fit_tracks_in_lanes", "fit_tracks_lanes", "lane_scratch"]
