@@ -129,9 +129,25 @@ def register_fitter(fitter_class: type, begin, fit, end, allocates: bool = True)
         _NOT_ALLOCATING.add(fitter_class)
 
 
-def track_loop(fitter):
-    """The compiled track loop for `fitter`: `fit_tracks_no_refcount` if its class was
-    registered with allocates=False, else `fit_tracks`."""
+#: Fitter class → chooser of its own track loop (`register_track_loop`).
+_OWN_LOOPS: dict[type, object] = {}
+
+
+def register_track_loop(fitter_class: type, choose) -> None:
+    """Make `choose(fitter)` pick the track loop of fitters of `fitter_class`: a function
+    with the signature and outputs of `fit_tracks`, or None for the shared loop (the
+    Kalman core's tracks in SIMD lanes, `pkf.fit.kalman_lanes`)."""
+    _OWN_LOOPS[fitter_class] = choose
+
+
+def track_loop(fitter, own: bool = True):
+    """The track loop for `fitter`: its class's own (`register_track_loop`) if `own` and
+    it takes this fitter; else `fit_tracks_no_refcount` if its class was registered with
+    allocates=False, else `fit_tracks`."""
+    choose = _OWN_LOOPS.get(type(fitter)) if own else None
+    loop = choose(fitter) if choose is not None else None
+    if loop is not None:
+        return loop
     return fit_tracks_no_refcount if type(fitter) in _NOT_ALLOCATING else fit_tracks
 
 

@@ -143,6 +143,7 @@ from pkf.jit import NO_REFCOUNT, prefetch_write, stack_array
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
 SMOOTHER_NONE = 2  # forward filter only (filtered states as output): for timing studies
+SMOOTHER_DEFERRED = 3  # forward filter only, P_k|k−1 kept, no outputs: the caller combines (`pkf.fit.kalman_lanes`)
 
 
 class NodeStages(NamedTuple):
@@ -317,12 +318,14 @@ def _fit_once(
     Arrays pred…noise/ref are per-node scratch (first n rows used), info_at/info_vec_at/
     pred_lanes/pred_cov_lanes per-node scratch in lanes (`_combine_nodes`); out_state/out_cov
     receive the optimal states. pred_cov/filt_cov are written only if keep_covs or the
-    smoother needs them (the weighted mean does not: it takes pred_cov_lanes). Returns
+    smoother needs them (the weighted mean does not: it takes pred_cov_lanes; with
+    SMOOTHER_DEFERRED pred_cov only, and nothing else after the forward filter). Returns
     (status code, track χ²).
     """
     n = z.size
     lanes = smoother == SMOOTHER_WEIGHTED_MEAN
-    keep_covs = keep_covs or not lanes
+    deferred = smoother == SMOOTHER_DEFERRED
+    keep_covs = keep_covs or not (lanes or deferred)
     lin = stack_array((5,))  # scratch on the stack (see `_backward_information_filter`)
     chi2 = 0.0
     tmp = stack_array((5, 5))
@@ -358,7 +361,7 @@ def _fit_once(
             copy5(pred[k], state)
         else:
             copy5(state, pred[0])
-        if keep_covs:
+        if keep_covs or deferred:
             copy55(cov, pred_cov[k])
         if lanes:  # the combination's inputs, already in lanes
             _to_lanes5(state, pred_lanes, k)
@@ -374,6 +377,8 @@ def _fit_once(
         copy5(state, filt[k])
         if keep_covs:
             copy55(cov, filt_cov[k])
+    if deferred:
+        return STATUS_OK, chi2
     if smoother == SMOOTHER_NONE:
         for k in range(n):
             copy5(filt[k], out_state[k])
