@@ -70,7 +70,8 @@ those tracks, ~165 ns/node averaged over all (a table down to 1.5 GeV, LHCb's p_
 would remove it). Both filters are chains of dependent steps, each waiting for the last
 (the update's division, the elimination's five pivots): one track at a time is
 latency-bound, and the backward step in SIMD lanes over the columns of its products
-gained only 5 % (not kept). The next step is several tracks in SIMD lanes at once.
+gained only 5 % (not kept). The next step was several tracks in SIMD lanes at once
+(below).
 
 Issue 18.1 (same protocol, `fit_core`'s loop in two long-lived processes, main cc35fa3
 and this code alternating, 4 rounds of min-of-5, the machine under load 4–5 on 2 cores),
@@ -95,6 +96,17 @@ misses; in the forward-only loop the same copy is 11 %), extrapolation 27 %
 3 %). Tried, measured, not kept: a branch-free bisection in `search_sorted` (nothing);
 prefetching the UT→SciFi cells when a track leaves the VELO (forward filter 3–4 %
 slower).
+
+Tracks in SIMD lanes (issue 18.1, `pkf.fit.kalman_lanes`): the track loop of the fitters
+with the weighted mean (`fit_batch`, `pkf reconstruct`) runs each track's forward filter
+here (`SMOOTHER_DEFERRED`) and the backward filter and combination of 8 tracks at once in
+SIMD lanes, the outlier refits through the scalar loop; every output bitwise that of the
+scalar loop. `benchmarks/fit_core.py --sample minbias --fitters parametrized,reference
+--repeat 5`, main and this code alternating, 2 rounds: parametrized full 390/403 →
+365/374 ns/node (×0.93), backward + combination 160/167 → 134/138; reference 2,884/2,942
+→ 2,906/2,908 (unchanged; reference/parametrized 7.3–7.4 → 7.8–8.0). Far from the issue's
+200 ns/node: moving a node's numbers into lanes costs about what the lanes gain (that
+module records what was tried and measured).
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;

@@ -1,47 +1,59 @@
-"""The Kalman core's backward filter with GROUP tracks in SIMD lanes (issue 18.1; opt-in, measured slower).
+"""The Kalman core's track loop with the backward filter over GROUP tracks in SIMD lanes (issue 18.1).
 
 `pkf.fit.kalman` fits one track at a time; both of its filters are chains of dependent
 steps (the update's division, the solve's five pivots), so one track is latency-bound.
 Here a group of GROUP tracks runs together in the structure-of-arrays layout of CMS
-mkFit's Matriplex: every matrix is (5, 5, GROUP), lane l the matrix of track l, and the
-backward information filter's step (`info_step_lane`: F·(x_p − x_f), I + Y·Q, the
-pivoting solve with its row swaps as selects, Fᵀ·(M·Y)·F, Fᵀ·M·y) and the weighted-mean
-combination (`_combine_lane`, `invert_spd_ldl_lane`) are loops over the lanes whose body
-is straight-line code (`pkf.physics.lanes_codegen`), issued as SIMD over the tracks. The
-forward filter of each track is `_fit_once`'s own (SMOOTHER_NONE), its per-node results
-(F, Q, prediction and its covariance, filtered state) then copied into the track's lane.
+mkFit's Matriplex: the backward information filter's step (`info_step_lane`:
+F·(x_p − x_f), I + Y·Q, the pivoting solve with its row swaps as selects, Fᵀ·(M·Y)·F,
+Fᵀ·M·y) and the weighted-mean combination (`_combine_lane`, `invert_spd_ldl_lane`) work
+on (5, 5, GROUP) stack arrays, lane l the matrix of track l, in loops over the lanes
+whose body is straight-line code (`pkf.physics.lanes_codegen`), which LLVM issues as
+SIMD over the tracks. The forward filter of each track is `_fit_once`'s own, one track
+at a time (SMOOTHER_DEFERRED: it keeps F, Q, x_p, P_p, x_f in the track's rows of the
+lane scratch, track-major, as it writes them); the backward filter gathers node k of the
+lanes onto the stack (`_gather_node`).
 
 Every lane performs the floating-point operations of the scalar core in the same order
 (numba does not contract to FMA without fastmath), with dense products where the scalar
 core leaves out exact zeros (`matmul_noise`, `transport_info`: bitwise the same for
 finite inputs, hence only tracks with a finite seed and seed covariance take the
-lanes): states, covariances, χ², node χ², status are bitwise those of
-`pkf.fit.driver.fit_tracks_no_refcount` (tests/fit/test_kalman_lanes.py; and on the
-8,907 minimum-bias long tracks of benchmarks/fit_core.py, parametrized, 1 and 2 passes,
+lanes): states, covariances, χ², node χ², active flags, status, ndf are bitwise those
+of the scalar loop `pkf.fit.driver.fit_tracks_no_refcount` (tests/fit/
+test_kalman_lanes.py: telescope tracks of unequal lengths, failing and NaN seeds; and,
+checked by hashing every output, the 8,907 minimum-bias long tracks of
+benchmarks/fit_core.py with the parametrized and the reference fitter, 1 and 2 passes,
 max_outliers 0 and 3, weighted mean and forward only, two seeds broken on purpose).
 
-Tracks of unequal lengths: sorted by number of nodes, so a group's lengths are close;
-each lane's (Y, y) starts empty at its own last node, and a lane past its track's end
-computes on what is there and is discarded. The outlier loop stays the shared one: after
-a group's lane fit, each track's node χ² (`find_outlier`); a track that failed anywhere,
-has an outlier to remove (max_outliers > 0), too few hits or a non-finite seed is fitted
-again from its start by `pkf.fit.driver.fit_one_track`, which writes all its outputs.
+Tracks of unequal lengths: sorted by number of nodes within windows of SORT_WINDOW
+tracks (`lane_order`), so a group's lengths are close; each lane's (Y, y) starts empty
+at its own last node, and a lane past its track's end computes on what is there and is
+discarded. The outlier loop stays the shared one: after a group's lane fit (all
+`n_iterations` passes), each track's node χ² (`find_outlier`); a track that failed
+anywhere, has an outlier to remove (max_outliers > 0), too few hits or a non-finite seed
+is fitted again from its start by `pkf.fit.driver.fit_one_track`, which writes all its
+outputs. `pkf.fit.driver.track_loop` gives this loop (`fit_tracks_in_lanes`) to
+`KalmanFitter`s with the weighted mean that keep no node stages (`fit_batch`, so `pkf
+reconstruct`, and benchmarks/fit_core.py's full fit); forward only, RTS and
+`track_states` keep the scalar loop.
 
-Measured (fit_core's loop, minimum bias, 257,055 nodes, one pass, CPU time, min of 5, the
-scalar loop and this one in the same process): backward filter + combination 160–190 →
-50–70 ns/node (×0.3–0.4), but the forward side costs more than that gains: full fit
-390–397 → 442–472 ns/node, the forward-only loop 211–232 → 366–382. Tried for the forward
-(all bitwise identical, all slower, git history of branch fit19): the forward filter in
-lanes too (F·P·Fᵀ + Q dense and the update with selects, SIMD over the tracks: 235 → 379),
-the scalar forward writing straight into the lanes track by track (→ 434) or node by node
-over the lanes (→ 380), and `_fit_once` then a copy into the lanes (→ 366; 338 with the
-tracks in their original order instead of sorted by length). What costs the +150 ns/node
-in the forward side was not found in the time (the copy into lanes is ~85 stores per
-node, each to a different cache line of the (5, 5, GROUP) layout; track order matters
-~30–60 ns/node). Hence not the production path: `pkf.fit.driver.track_loop` keeps the
-scalar loop; `fit_tracks_in_lanes` (same signature and outputs as `fit_tracks`) is here
-for the next attempt, e.g. a lane layout per track block written contiguously, or the
-lanes' forward with the structured F·P·Fᵀ of the step types.
+Measured (fit_core's loop, minimum bias, 257,055 nodes, one pass, no outlier removal,
+CPU time, min of 5, the scalar loop and this one alternating in one process, 3 rounds):
+parametrized full fit 373–386 → 355–363 ns/node (×0.93–0.96; GROUP = 4: ×0.92–0.93);
+reference ×0.99–1.01 (its RK4 dominates). The backward filter + combination alone went
+from 160–190 to 50–70 ns/node when its inputs were already in (5, 5, GROUP) rows; what
+the lanes gain there the forward side gives back: gathering or writing a node's 85
+numbers into lanes (each a different cache line of the (…, 5, 5, GROUP) rows) measured
+37 (node by node) to 107 (track by track) ns/node alone, and sorting the whole batch by
+length costs the forward filter ~50 ns/node in cache misses (windows of 128: ~20).
+Tried (all bitwise identical, all slower; branch fit19's history): the forward filter in
+lanes too (F·P·Fᵀ + Q dense and the update with selects, SIMD over the tracks:
+forward-only 235 → 379 ns/node), the scalar forward writing straight into the lanes
+track by track (→ 434) or node by node over the lanes (→ 380), `_fit_once` then a copy
+into lanes (→ 366), and the backward step reading F, Q in place from the track-major rows
+instead of gathering them (no change). Next: a forward filter whose F·P·Fᵀ uses the
+parametrized steps' structure in lanes (the dense one costs more than the latency it
+hides), or fewer numbers per node to move (F and Q of a parametrized step have ~10
+non-trivial entries each).
 """
 
 from __future__ import annotations
