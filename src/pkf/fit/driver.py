@@ -162,15 +162,27 @@ def fit_one_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, nod
                   out_ndf, out_n_outliers):
     """Fit track t of a CSR batch with `fitter`, removing outliers (`_fit_tracks_loop`'s
     arguments): begin, then fit → find the outlier → deactivate → refit, then end."""
+    out_active[offsets[t]:offsets[t + 1]] = True
+    status = begin_track(fitter, t, seeds[t])
+    refit_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                out_ndf, out_n_outliers, status, 0)
+
+
+@nb.njit(cache=True, inline="always")
+def refit_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                out_ndf, out_n_outliers, status, n_out):
+    """`fit_one_track`'s loop (fit → find the outlier → deactivate → refit, then end) from
+    `status` with `n_out` nodes already deactivated in out_active: after begin_track
+    (n_out = 0), or after a first fit made elsewhere whose outlier was just deactivated
+    (`pkf.fit.kalman_lanes`; the fitter's state then that of its first fit)."""
     lo = offsets[t]
     hi = offsets[t + 1]
     n_meas = node_n_meas[lo:hi]
     active = out_active[lo:hi]
-    active[:] = True
-    n_out = 0
     chi2 = 0.0
     ndf = 0
-    status = begin_track(fitter, t, seeds[t])
     while status == STATUS_OK:
         ndf = count_ndf(n_meas, active)
         if ndf <= 0:

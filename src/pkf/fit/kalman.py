@@ -104,9 +104,12 @@ SIMD lanes, the outlier refits through the scalar loop; every output bitwise tha
 scalar loop. `benchmarks/fit_core.py --sample minbias --fitters parametrized,reference
 --repeat 5`, main and this code alternating, 2 rounds: parametrized full 390/403 →
 365/374 ns/node (×0.93), backward + combination 160/167 → 134/138; reference 2,884/2,942
-→ 2,906/2,908 (unchanged; reference/parametrized 7.3–7.4 → 7.8–8.0). Far from the issue's
-200 ns/node: moving a node's numbers into lanes costs about what the lanes gain (that
-module records what was tried and measured).
+→ 2,906/2,908 (unchanged; reference/parametrized 7.3–7.4 → 7.8–8.0). As `pkf reconstruct`
+runs it (`fit_batch`, 2 passes, outlier removal: a track with an outlier continues in
+the scalar loop from its lane fit), parametrized on the same tracks: 863/890 → 790/784
+ns/node (×0.88–0.92), outputs and locations bitwise main's (parametrized and reference).
+Far from the issue's 200 ns/node: moving a node's numbers into lanes costs about what the
+lanes gain (that module records what was tried and measured).
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;

@@ -28,10 +28,11 @@ Tracks of unequal lengths: sorted by number of nodes within windows of SORT_WIND
 tracks (`lane_order`), so a group's lengths are close; each lane's (Y, y) starts empty
 at its own last node, and a lane past its track's end computes on what is there and is
 discarded. The outlier loop stays the shared one: after a group's lane fit (all
-`n_iterations` passes), each track's node χ² (`find_outlier`); a track that failed
-anywhere, has an outlier to remove (max_outliers > 0), too few hits or a non-finite seed
-is fitted again from its start by `pkf.fit.driver.fit_one_track`, which writes all its
-outputs. `pkf.fit.driver.track_loop` gives this loop (`fit_tracks_in_lanes`) to
+`n_iterations` passes), each track's node χ² (`find_outlier`); a track with an outlier
+to remove continues in the shared loop from there (`pkf.fit.driver.refit_track`, with
+the fitter's reference set as its first fit leaves it); one that failed anywhere, has
+too few hits or a non-finite seed is fitted again from its start by
+`pkf.fit.driver.fit_one_track`, which writes all its outputs. `pkf.fit.driver.track_loop` gives this loop (`fit_tracks_in_lanes`) to
 `KalmanFitter`s with the weighted mean that keep no node stages (`fit_batch`, so `pkf
 reconstruct`, and benchmarks/fit_core.py's full fit); forward only, RTS and
 `track_states` keep the scalar loop.
@@ -39,7 +40,9 @@ reconstruct`, and benchmarks/fit_core.py's full fit); forward only, RTS and
 Measured (fit_core's loop, minimum bias, 257,055 nodes, one pass, no outlier removal,
 CPU time, min of 5, the scalar loop and this one alternating in one process, 3 rounds):
 parametrized full fit 373–386 → 355–363 ns/node (×0.93–0.96; GROUP = 4: ×0.92–0.93);
-reference ×0.99–1.01 (its RK4 dominates). The backward filter + combination alone went
+reference ×0.99–1.01 (its RK4 dominates). `fit_batch` as `pkf reconstruct` runs it
+(parametrized, 2 passes, outlier removal; main and this code alternating, 2 rounds):
+863/890 → 790/784 ns/node (×0.88–0.92). The backward filter + combination alone went
 from 160–190 to 50–70 ns/node when its inputs were already in (5, 5, GROUP) rows; what
 the lanes gain there the forward side gives back: gathering or writing a node's 85
 numbers into lanes (each a different cache line of the (…, 5, 5, GROUP) rows) measured
@@ -70,6 +73,7 @@ from pkf.fit.driver import (
     fit_one_track,
     fit_tracks_no_refcount,
     max_nodes,
+    refit_track,
     register_track_loop,
 )
 from pkf.fit.kalman import SMOOTHER_DEFERRED, SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter, _fit_once
@@ -430,7 +434,39 @@ def fit_tracks_lanes(
                     out_node_chi2[lo:hi],
                     fitter.measurement_only_fallback,
                 )
-            if sc.alive[l] == 0.0 or status != STATUS_OK or (max_outliers > 0 and worst >= 0):
+            if sc.alive[l] != 0.0 and status == STATUS_OK and max_outliers > 0 and worst >= 0:
+                # the scalar loop's state after this first fit, then its refits
+                for k in range(hi - lo):
+                    copy5(out_state[lo + k], fitter.ref[k])
+                fitter.have_reference[0] = True
+                out_active[lo + worst] = False
+                refit_track(
+                    fitter,
+                    t,
+                    offsets,
+                    node_z,
+                    node_n_meas,
+                    node_hx,
+                    node_hy,
+                    node_m,
+                    node_sigma,
+                    seeds,
+                    seed_covs,
+                    outlier_cuts,
+                    max_outliers,
+                    out_state,
+                    out_cov,
+                    out_node_chi2,
+                    out_active,
+                    out_status,
+                    out_chi2,
+                    out_ndf,
+                    out_n_outliers,
+                    STATUS_OK,
+                    1,
+                )
+                continue
+            if sc.alive[l] == 0.0 or status != STATUS_OK:
                 fit_one_track(
                     fitter,
                     t,
