@@ -4,7 +4,9 @@ Fits the tracks of `benchmarks/fit_compare.py`'s dataset (``--data``, made by it
 a lhcb-like π gun, or with ``--sample minbias`` 40 minimum-bias events at ν = 7.6, long
 truth tracks and their seeds) once per repeat with one pass and no
 outlier removal, with the weighted-mean combination ("full") and without it ("forward":
-the forward filter only; full − forward = backward filter + combination). No Python around
+the forward filter only; full − forward = backward filter + combination). Each runs the
+loop `pkf.fit.driver.track_loop` gives: for the full fit the Kalman core's tracks in SIMD
+lanes (`pkf.fit.kalman_lanes`, with its order of the tracks), forward only the scalar loop. No Python around
 the loop (no result allocation, no beamline), so differences between checkouts are those
 of the kernels. Prints the minimum over ``--repeat`` of the CPU time (time.process_time)
 per node. Compare checkouts by running it alternately with each on PYTHONPATH (and its own

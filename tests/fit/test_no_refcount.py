@@ -7,14 +7,17 @@ import pytest
 from pkf.fit.driver import fit_tracks_no_refcount, node_chi2, track_loop
 from pkf.fit.gsf import GsfFitter
 from pkf.fit.gx2f import gx2f_fitter
-from pkf.fit.kalman import kalman_fitter
+from pkf.fit.kalman import SMOOTHER_NONE, kalman_fitter
+from pkf.fit.kalman_lanes import fit_tracks_in_lanes
 from pkf.fit.reference import reference_extrapolator
 from pkf.geometry import load_geometry
 
 
 def test_kalman_gx2f_and_gsf_use_the_loop_without_reference_counts():
     ext = reference_extrapolator(load_geometry("telescope"))
-    assert track_loop(kalman_fitter(ext, 4)) is fit_tracks_no_refcount
+    assert track_loop(kalman_fitter(ext, 4)) is fit_tracks_in_lanes  # its own loop, in SIMD lanes
+    assert track_loop(kalman_fitter(ext, 4), own=False) is fit_tracks_no_refcount
+    assert track_loop(kalman_fitter(ext, 4, smoother=SMOOTHER_NONE)) is fit_tracks_no_refcount
     assert track_loop(gx2f_fitter(ext, 4, 1)) is fit_tracks_no_refcount
     assert track_loop(tuple.__new__(GsfFitter, ())) is fit_tracks_no_refcount  # the type decides
 

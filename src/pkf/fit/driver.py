@@ -129,9 +129,25 @@ def register_fitter(fitter_class: type, begin, fit, end, allocates: bool = True)
         _NOT_ALLOCATING.add(fitter_class)
 
 
-def track_loop(fitter):
-    """The compiled track loop for `fitter`: `fit_tracks_no_refcount` if its class was
-    registered with allocates=False, else `fit_tracks`."""
+#: Fitter class → chooser of its own track loop (`register_track_loop`).
+_OWN_LOOPS: dict[type, object] = {}
+
+
+def register_track_loop(fitter_class: type, choose) -> None:
+    """Make `choose(fitter)` pick the track loop of fitters of `fitter_class`: a function
+    with the signature and outputs of `fit_tracks`, or None for the shared loop (the
+    Kalman core's tracks in SIMD lanes, `pkf.fit.kalman_lanes`)."""
+    _OWN_LOOPS[fitter_class] = choose
+
+
+def track_loop(fitter, own: bool = True):
+    """The track loop for `fitter`: its class's own (`register_track_loop`) if `own` and
+    it takes this fitter; else `fit_tracks_no_refcount` if its class was registered with
+    allocates=False, else `fit_tracks`."""
+    choose = _OWN_LOOPS.get(type(fitter)) if own else None
+    loop = choose(fitter) if choose is not None else None
+    if loop is not None:
+        return loop
     return fit_tracks_no_refcount if type(fitter) in _NOT_ALLOCATING else fit_tracks
 
 
@@ -141,10 +157,64 @@ def max_nodes(offsets: np.ndarray) -> int:
 
 
 @nb.njit(cache=True, inline="always")
+def fit_one_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                  outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                  out_ndf, out_n_outliers):
+    """Fit track t of a CSR batch with `fitter`, removing outliers (`_fit_tracks_loop`'s
+    arguments): begin, then fit → find the outlier → deactivate → refit, then end."""
+    out_active[offsets[t]:offsets[t + 1]] = True
+    status = begin_track(fitter, t, seeds[t])
+    refit_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                out_ndf, out_n_outliers, status, 0)
+
+
+@nb.njit(cache=True, inline="always")
+def refit_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
+                outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
+                out_ndf, out_n_outliers, status, n_out):
+    """`fit_one_track`'s loop (fit → find the outlier → deactivate → refit, then end) from
+    `status` with `n_out` nodes already deactivated in out_active: after begin_track
+    (n_out = 0), or after a first fit made elsewhere whose outlier was just deactivated
+    (`pkf.fit.kalman_lanes`; the fitter's state then that of its first fit)."""
+    lo = offsets[t]
+    hi = offsets[t + 1]
+    n_meas = node_n_meas[lo:hi]
+    active = out_active[lo:hi]
+    chi2 = 0.0
+    ndf = 0
+    while status == STATUS_OK:
+        ndf = count_ndf(n_meas, active)
+        if ndf <= 0:
+            status = STATUS_TOO_FEW_HITS
+            break
+        status, chi2 = fit_track(fitter, t, lo, hi, node_z[lo:hi], n_meas, node_hx[lo:hi], node_hy[lo:hi],
+                                 node_m[lo:hi], node_sigma[lo:hi], active, seeds[t], seed_covs[t],
+                                 out_state[lo:hi], out_cov[lo:hi])
+        if status != STATUS_OK:
+            break
+        status, worst = find_outlier(out_state[lo:hi], out_cov[lo:hi], n_meas, node_hx[lo:hi], node_hy[lo:hi],
+                                     node_m[lo:hi], node_sigma[lo:hi], active, outlier_cuts,
+                                     out_node_chi2[lo:hi], fitter.measurement_only_fallback)
+        if status != STATUS_OK:
+            break
+        if n_out < max_outliers and worst >= 0:
+            active[worst] = False
+            n_out += 1
+            continue
+        break
+    end_track(fitter, t, lo, hi, status, out_state[lo:hi], out_cov[lo:hi])
+    out_status[t] = status
+    out_chi2[t] = chi2 if status == STATUS_OK else np.nan
+    out_ndf[t] = ndf
+    out_n_outliers[t] = n_out
+
+
+@nb.njit(cache=True, inline="always")
 def _fit_tracks_loop(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds, seed_covs,
                      outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active, out_status, out_chi2,
                      out_ndf, out_n_outliers):
-    """Fit every track of a CSR batch with `fitter`, removing outliers.
+    """Fit every track of a CSR batch with `fitter`, removing outliers (`fit_one_track`).
 
     Node arrays: node_z [mm] (n), node_n_meas (1 or 2), node_hx/node_hy (n, 2) the
     measurement directions, node_m (n, 2) measured values [mm], node_sigma (n, 2) [mm];
@@ -154,40 +224,9 @@ def _fit_tracks_loop(fitter, offsets, node_z, node_n_meas, node_hx, node_hy, nod
     χ² (NaN unless ok), ndf and number of removed outliers.
     """
     for t in range(offsets.size - 1):
-        lo = offsets[t]
-        hi = offsets[t + 1]
-        n_meas = node_n_meas[lo:hi]
-        active = out_active[lo:hi]
-        active[:] = True
-        n_out = 0
-        chi2 = 0.0
-        ndf = 0
-        status = begin_track(fitter, t, seeds[t])
-        while status == STATUS_OK:
-            ndf = count_ndf(n_meas, active)
-            if ndf <= 0:
-                status = STATUS_TOO_FEW_HITS
-                break
-            status, chi2 = fit_track(fitter, t, lo, hi, node_z[lo:hi], n_meas, node_hx[lo:hi], node_hy[lo:hi],
-                                     node_m[lo:hi], node_sigma[lo:hi], active, seeds[t], seed_covs[t],
-                                     out_state[lo:hi], out_cov[lo:hi])
-            if status != STATUS_OK:
-                break
-            status, worst = find_outlier(out_state[lo:hi], out_cov[lo:hi], n_meas, node_hx[lo:hi], node_hy[lo:hi],
-                                         node_m[lo:hi], node_sigma[lo:hi], active, outlier_cuts,
-                                         out_node_chi2[lo:hi], fitter.measurement_only_fallback)
-            if status != STATUS_OK:
-                break
-            if n_out < max_outliers and worst >= 0:
-                active[worst] = False
-                n_out += 1
-                continue
-            break
-        end_track(fitter, t, lo, hi, status, out_state[lo:hi], out_cov[lo:hi])
-        out_status[t] = status
-        out_chi2[t] = chi2 if status == STATUS_OK else np.nan
-        out_ndf[t] = ndf
-        out_n_outliers[t] = n_out
+        fit_one_track(fitter, t, offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sigma, seeds,
+                      seed_covs, outlier_cuts, max_outliers, out_state, out_cov, out_node_chi2, out_active,
+                      out_status, out_chi2, out_ndf, out_n_outliers)
 
 
 @nb.njit(cache=True)

@@ -70,7 +70,8 @@ those tracks, ~165 ns/node averaged over all (a table down to 1.5 GeV, LHCb's p_
 would remove it). Both filters are chains of dependent steps, each waiting for the last
 (the update's division, the elimination's five pivots): one track at a time is
 latency-bound, and the backward step in SIMD lanes over the columns of its products
-gained only 5 % (not kept). The next step is several tracks in SIMD lanes at once.
+gained only 5 % (not kept). The next step was several tracks in SIMD lanes at once
+(below).
 
 Issue 18.1 (same protocol, `fit_core`'s loop in two long-lived processes, main cc35fa3
 and this code alternating, 4 rounds of min-of-5, the machine under load 4–5 on 2 cores),
@@ -95,6 +96,20 @@ misses; in the forward-only loop the same copy is 11 %), extrapolation 27 %
 3 %). Tried, measured, not kept: a branch-free bisection in `search_sorted` (nothing);
 prefetching the UT→SciFi cells when a track leaves the VELO (forward filter 3–4 %
 slower).
+
+Tracks in SIMD lanes (issue 18.1, `pkf.fit.kalman_lanes`): the track loop of the fitters
+with the weighted mean (`fit_batch`, `pkf reconstruct`) runs each track's forward filter
+here (`SMOOTHER_DEFERRED`) and the backward filter and combination of 8 tracks at once in
+SIMD lanes, the outlier refits through the scalar loop; every output bitwise that of the
+scalar loop. `benchmarks/fit_core.py --sample minbias --fitters parametrized,reference
+--repeat 5`, main and this code alternating, 2 rounds: parametrized full 390/403 →
+365/374 ns/node (×0.93), backward + combination 160/167 → 134/138; reference 2,884/2,942
+→ 2,906/2,908 (unchanged; reference/parametrized 7.3–7.4 → 7.8–8.0). As `pkf reconstruct`
+runs it (`fit_batch`, 2 passes, outlier removal: a track with an outlier continues in
+the scalar loop from its lane fit), parametrized on the same tracks: 863/890 → 790/784
+ns/node (×0.88–0.92), outputs and locations bitwise main's (parametrized and reference).
+Far from the issue's 200 ns/node: moving a node's numbers into lanes costs about what the
+lanes gain (that module records what was tried and measured).
 
 Per-node track states (ACTS's predicted / filtered / smoothed, seeds/002): the forward
 filter's predicted and filtered states of the last fit are scratch of `KalmanFitter`;
@@ -143,6 +158,7 @@ from pkf.jit import NO_REFCOUNT, prefetch_write, stack_array
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
 SMOOTHER_NONE = 2  # forward filter only (filtered states as output): for timing studies
+SMOOTHER_DEFERRED = 3  # forward filter only, P_k|k−1 kept, no outputs: the caller combines (`pkf.fit.kalman_lanes`)
 
 
 class NodeStages(NamedTuple):
@@ -317,12 +333,14 @@ def _fit_once(
     Arrays pred…noise/ref are per-node scratch (first n rows used), info_at/info_vec_at/
     pred_lanes/pred_cov_lanes per-node scratch in lanes (`_combine_nodes`); out_state/out_cov
     receive the optimal states. pred_cov/filt_cov are written only if keep_covs or the
-    smoother needs them (the weighted mean does not: it takes pred_cov_lanes). Returns
+    smoother needs them (the weighted mean does not: it takes pred_cov_lanes; with
+    SMOOTHER_DEFERRED pred_cov only, and nothing else after the forward filter). Returns
     (status code, track χ²).
     """
     n = z.size
     lanes = smoother == SMOOTHER_WEIGHTED_MEAN
-    keep_covs = keep_covs or not lanes
+    deferred = smoother == SMOOTHER_DEFERRED
+    keep_covs = keep_covs or not (lanes or deferred)
     lin = stack_array((5,))  # scratch on the stack (see `_backward_information_filter`)
     chi2 = 0.0
     tmp = stack_array((5, 5))
@@ -358,7 +376,7 @@ def _fit_once(
             copy5(pred[k], state)
         else:
             copy5(state, pred[0])
-        if keep_covs:
+        if keep_covs or deferred:
             copy55(cov, pred_cov[k])
         if lanes:  # the combination's inputs, already in lanes
             _to_lanes5(state, pred_lanes, k)
@@ -374,6 +392,8 @@ def _fit_once(
         copy5(state, filt[k])
         if keep_covs:
             copy55(cov, filt_cov[k])
+    if deferred:
+        return STATUS_OK, chi2
     if smoother == SMOOTHER_NONE:
         for k in range(n):
             copy5(filt[k], out_state[k])

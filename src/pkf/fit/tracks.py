@@ -20,6 +20,7 @@ from pkf.fit.beamline import beamline_states
 from pkf.fit.candidates import Candidates
 from pkf.fit.driver import max_nodes, track_loop
 from pkf.fit.hypothesis import ELECTRON_SEED_QOP_FRACTION, ElectronHypothesis, widen_seed_qop
+import pkf.fit.kalman_lanes  # noqa: F401  (registers the Kalman core's track loop in lanes)
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
 from pkf.fit.options import FitOptions
 from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
