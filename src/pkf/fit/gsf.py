@@ -26,6 +26,34 @@ neighbour bookkeeping with vectorised rows of distances on a compact mixture, `_
 O(n²) for the first neighbours, O(n) per merge, in the n ≈ 64 of 12·K components the
 weight cut leaves on lhcb-like electrons).
 
+Reduction after a convolution (issue 18.2, third round): the children of one component
+(its K Bethe–Heitler components, "siblings") share everything but the q/p row and column,
+and the closest pair among a family's K is found from K(K − 1)/2 ≤ 28 distances. So the
+closest pair of *siblings* is merged first (same distance, same moment matching;
+`_merge_siblings`, each family keeping its own closest pair) until at most
+`GSFOptions.sibling_merge` × `max_components` components remain (3.5 × 12 = 42), then the
+closest pairs of all (`_reduce`) down to 12; ACTS merges the closest pair of all from the
+start (a cached matrix of symmetric KL distances, the same q/p distance). Measured
+(`benchmarks/electron_fits.py` sample, lhcb-like electrons 2–50 GeV, the GSF alone; seed 7,
+1,500 tracks, and seed 11, 600 events, 3,000 tracks; every difference to the all-at-once
+reduction with its paired-bootstrap error over the tracks): factor 3.5 leaves the q/p pull
+RMS, share within ±1.2, pull core and δp/p core at the first hit, beamline, last VELO, last
+UT and last hit within 1–1.5 σ of the differences (first-hit pull core 0.661 → 0.661 ± 0.006,
+δp/p core 13.20 → 13.49 ± 0.19 %, last-hit δp/p core 2.802 → 2.795 ± 0.021 %, seed 11), the
+same 3 of 3,000 tracks fail as before, and the fit takes ×0.85 the CPU time (gsf_components
+sample, 946 tracks, 3 interleaved rounds); telescope electrons (`benchmarks/vs_acts.py`,
+2,000 tracks): 536 → 471 µs per track, 0.49 → 0.46 × ACTS's GSF, q/p pull core 0.586, x pull
+core 0.988 and δ(q/p) core 2.059 % unchanged. Factor 4: ×0.885, unchanged within 1.3 σ; factor
+3: ×0.825, within 1.5 σ on seed 11 except the beamline share within ±1.2 (0.790 →
+0.787 ± 0.001); factor 2: ×0.74 but the first-hit and beamline pull cores narrower by
+0.11 ± 0.03 and 0.13 ± 0.03 and the last-hit δp/p core wider (2.85 → 3.73 ± 0.24 %, seed 7):
+a family left with two components on average loses the radiation tail's shape; factor 1
+(each family to one component where it can): ×1.8 slower (the mixtures it leaves make
+every later stage costlier). Merging the forward × backward products of one forward
+component first in the smoothing likewise (families of 12, down to 24) was ×0.95 but made
+the last-VELO-hit q/p pull core 0.063 → 0.202 ± 0.020 and its δp/p core 0.97 → 2.35 % (not
+kept). ``sibling_merge=0`` gives the previous reduction bit for bit.
+
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
 N(r_c; 0, S_c), then the weights are renormalised and cut.
@@ -335,6 +363,7 @@ class GsfExtrapolator(NamedTuple):
     share_jacobians: bool
     seed_qop_fraction: float
     peak_window: float
+    sibling_target: int
 
 
 def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool | None = None,
@@ -356,7 +385,14 @@ def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool 
                            np.ascontiguousarray(mixture.coefficients), float(mixture.t_min),
                            float(mixture.t_max), bool(bethe_heitler), defaults.max_components,
                            defaults.weight_cut, OUTPUTS[defaults.output], bool(share_jacobians),
-                           float(seed_qop_fraction), float(peak_window))
+                           float(seed_qop_fraction), float(peak_window), sibling_target(defaults))
+
+
+def sibling_target(options: GSFOptions) -> int:
+    """The component count down to which siblings are merged first after a Bethe–Heitler
+    convolution (`_merge_siblings`): `options.sibling_merge` × `options.max_components`,
+    rounded (0: off)."""
+    return int(round(options.sibling_merge * options.max_components))
 
 
 @dataclass
@@ -402,9 +438,10 @@ def _merge_into(w, mu, cov, i, j):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _normalise_and_cut(w, mu, cov, n, cut):
-    """Normalise the weights, drop components below `cut` (keeping the largest), compact.
-    Returns the new number of components (0 if no weight is positive)."""
+def _normalise_and_cut(w, mu, cov, n, cut, labels=None):
+    """Normalise the weights, drop components below `cut` (keeping the largest), compact
+    (`labels`, if given, along with the components). Returns the new number of components
+    (0 if no weight is positive)."""
     total = 0.0
     best = -1
     for c in range(n):
@@ -425,6 +462,8 @@ def _normalise_and_cut(w, mu, cov, n, cut):
         if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
             if out != c:
                 _copy_component(w, mu, cov, c, w, mu, cov, out)
+                if labels is not None:
+                    labels[out] = labels[c]
             w[out] /= kept
             out += 1
     return out
@@ -611,6 +650,71 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments):
         nearest_d[i] = near_d
         nn[i] = near
     return count
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _closest_siblings(lo, hi, q, v, iv, alive):
+    """(KL distance, a, b) of the closest pair a < b of live components (alive > 0) among
+    slots lo … hi − 1, the first in (a, b) order among equal distances; (inf, −1, −1) if
+    none is below +inf (NaN never is)."""
+    best = np.inf
+    best_a = -1
+    best_b = -1
+    for a in range(lo, hi):
+        if not alive[a] > 0.0:
+            continue
+        for b in range(a + 1, hi):
+            if alive[b] > 0.0:
+                d = _kl_from_moments(q, v, iv, a, b)
+                if d < best:
+                    best = d
+                    best_a = a
+                    best_b = b
+    return best, best_a, best_b
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
+    """Merge the closest pair of siblings (components with the same `parent`, consecutive:
+    the Bethe–Heitler children of one component, `_material`) in the KL distance of
+    `_reduce` until at most `target` components remain or no sibling pair is left; returns
+    the new count (compact, in the order of the survivors). Siblings share everything but
+    their q/p row and column (module docstring, "Reduction after a convolution"); each family
+    keeps its own closest pair (distance, slots), so a merge recomputes only that family's
+    ≤ K(K − 1)/2 distances. The survivors' parents are not compacted along. `nearest` (4, ≥ n + 1) and `moments`
+    (5, ≥ n) are scratch."""
+    if n <= target:
+        return n
+    start, first, second = nearest[0], nearest[1], nearest[3]
+    best_d, q, v, iv, alive = moments[0], moments[1], moments[2], moments[3], moments[4]
+    n_families = 0
+    for c in range(n):
+        if c == 0 or parent[c] != parent[c - 1]:
+            start[n_families] = c
+            n_families += 1
+        _load_qop_moments(mu, cov, c, q, v, iv)
+        alive[c] = 1.0
+    start[n_families] = n
+    for f in range(n_families):
+        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+    count = n
+    while count > target:
+        f = _first_min(n_families, best_d)[1]
+        if f < 0:
+            break
+        i = first[f]
+        _merge_into(w, mu, cov, i, second[f])
+        _load_qop_moments(mu, cov, i, q, v, iv)
+        alive[second[f]] = 0.0
+        count -= 1
+        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+    out = 0
+    for c in range(n):
+        if alive[c] > 0.0:
+            if out != c:
+                _copy_component(w, mu, cov, c, w, mu, cov, out)
+            out += 1
+    return out
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -901,11 +1005,13 @@ def _finite_diagonal(cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
+def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv, parent):
     """Material of plane k for every component of (w, mu, cov)[:n], written into
     (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
-    Bethe–Heitler convolution. A component whose particle stops in the plane (q/p → ±inf)
-    is dropped. Returns the number of output components (0 if every one stopped)."""
+    Bethe–Heitler convolution; each output component's input component into `parent` (the
+    children of one component are consecutive). A component whose particle stops in the
+    plane (q/p → ±inf) is dropped. Returns the number of output components (0 if every one
+    stopped)."""
     ref = ctx.ref
     out = 0
     for c in range(n):
@@ -930,6 +1036,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
             nb_comp = bethe_heitler_components(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, t, bw, bm, bv)
         if nb_comp == 0:
             _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
+            parent[out] = c
             out += 1
             continue
         qop = mu[c, 4]
@@ -951,6 +1058,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                 p2[4, i] *= jq
                 p2[i, 4] *= jq
             p2[4, 4] += add
+            parent[out] = c
             out += 1
     return out
 
@@ -988,9 +1096,13 @@ def _mixture_interact(actor, ext, k, direction):
     """Material and Bethe–Heitler convolution of plane k, weight cut, reduction."""
     w, mu, cov, w2, mu2, cov2 = actor.buf
     ctx = actor.ctx
+    parent = actor.nearest[2]
     n2 = _material(ctx, k, direction, w, mu, cov, actor.count[0], w2, mu2, cov2, actor.scratch[3],
-                   actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2])
-    n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
+                   actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2], parent)
+    n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut, parent)
+    if ctx.sibling_target > 0:
+        n2 = _merge_siblings(w2, mu2, cov2, n2, max(ctx.sibling_target, ctx.max_components), parent,
+                             actor.nearest, actor.moments)
     n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.moments)
     for c in range(n2):
         _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
@@ -1531,7 +1643,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
          np.zeros((cap, 5, 5))),
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((25, cap)), np.zeros((45, cap))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
-        np.zeros(n_nodes, dtype=np.int64), np.zeros((2, cap), dtype=np.int64), np.zeros((5, cap)),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros((4, cap + 1), dtype=np.int64), np.zeros((5, cap)),
         np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
@@ -1618,7 +1730,7 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     not the output state (`options.gsf.output`, "core" by default) unless the output is "mean"."""
     mixture = options.gsf
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
-                                output=OUTPUTS[mixture.output])
+                                output=OUTPUTS[mixture.output], sibling_target=sibling_target(mixture))
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
     velo_only = None if batch.track_type is None else batch.track_type == TRACK_VELO
     qop_prior = None if batch.track_type is None else np.where(
