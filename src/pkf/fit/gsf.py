@@ -26,33 +26,42 @@ neighbour bookkeeping with vectorised rows of distances on a compact mixture, `_
 O(n²) for the first neighbours, O(n) per merge, in the n ≈ 64 of 12·K components the
 weight cut leaves on lhcb-like electrons).
 
-Reduction after a convolution (issue 18.2, third round): the children of one component
-(its K Bethe–Heitler components, "siblings") share everything but the q/p row and column,
-and the closest pair among a family's K is found from K(K − 1)/2 ≤ 28 distances. So the
-closest pair of *siblings* is merged first (same distance, same moment matching;
-`_merge_siblings`, each family keeping its own closest pair) until at most
-`GSFOptions.sibling_merge` × `max_components` components remain (3.5 × 12 = 42), then the
-closest pairs of all (`_reduce`) down to 12; ACTS merges the closest pair of all from the
-start (a cached matrix of symmetric KL distances, the same q/p distance). Measured
-(`benchmarks/electron_fits.py` sample, lhcb-like electrons 2–50 GeV, the GSF alone; seed 7,
-1,500 tracks, and seed 11, 600 events, 3,000 tracks; every difference to the all-at-once
-reduction with its paired-bootstrap error over the tracks): factor 3.5 leaves the q/p pull
-RMS, share within ±1.2, pull core and δp/p core at the first hit, beamline, last VELO, last
-UT and last hit within 1–1.5 σ of the differences (first-hit pull core 0.661 → 0.661 ± 0.006,
-δp/p core 13.20 → 13.49 ± 0.19 %, last-hit δp/p core 2.802 → 2.795 ± 0.021 %, seed 11), the
-same 3 of 3,000 tracks fail as before, and the fit takes ×0.85 the CPU time (gsf_components
-sample, 946 tracks, 3 interleaved rounds); telescope electrons (`benchmarks/vs_acts.py`,
-2,000 tracks): 536 → 471 µs per track, 0.49 → 0.46 × ACTS's GSF, q/p pull core 0.586, x pull
-core 0.988 and δ(q/p) core 2.059 % unchanged. Factor 4: ×0.885, unchanged within 1.3 σ; factor
-3: ×0.825, within 1.5 σ on seed 11 except the beamline share within ±1.2 (0.790 →
-0.787 ± 0.001); factor 2: ×0.74 but the first-hit and beamline pull cores narrower by
-0.11 ± 0.03 and 0.13 ± 0.03 and the last-hit δp/p core wider (2.85 → 3.73 ± 0.24 %, seed 7):
-a family left with two components on average loses the radiation tail's shape; factor 1
-(each family to one component where it can): ×1.8 slower (the mixtures it leaves make
-every later stage costlier). Merging the forward × backward products of one forward
-component first in the smoothing likewise (families of 12, down to 24) was ×0.95 but made
-the last-VELO-hit q/p pull core 0.063 → 0.202 ± 0.020 and its δp/p core 0.97 → 2.35 % (not
-kept). ``sibling_merge=0`` gives the previous reduction bit for bit.
+Reduction after a convolution (issue 18.2, third round): the children of one component (its
+K Bethe–Heitler components, "siblings") share everything but the q/p row and column, and the
+closest pair among a family's K is found from K(K − 1)/2 ≤ 28 distances. So the closest pair
+of *siblings* is merged first (same distance, same moment matching; `_merge_siblings`, each
+family keeping its own closest pair) until at most `GSFOptions.sibling_merge` ×
+`max_components` components remain (3.5 × 12 = 42), then the closest pairs of all
+(`_reduce`) down to 12; ACTS merges the closest pair of all from the start (a cached matrix
+of symmetric KL distances, the same q/p distance). Measured (`benchmarks/electron_fits.py`
+sample, lhcb-like electrons 2–50 GeV, the GSF alone; seed 7, 1,500 tracks, and seed 11, 600
+events, 3,000 tracks; every difference to the all-at-once reduction with its
+paired-bootstrap error over the tracks): factor 3.5 leaves the q/p pull RMS, share within
+±1.2, pull core and δp/p core at the first hit, beamline, last VELO, last UT and last hit
+within 1.5 σ of the differences (seed 11: first-hit pull core 0.661 → 0.661 ± 0.006, δp/p
+core 13.20 → 13.49 ± 0.19 %, last-hit δp/p core 2.802 → 2.795 ± 0.021 %; seed 7: 0.671 →
+0.675 ± 0.011, 15.18 → 15.31 ± 0.21 %, 2.853 → 2.909 ± 0.056 %; the last-VELO-hit pull RMS
+of seed 7, 1.48 → 3.06 ± 1.1, is one track's pull, the share within ±1.2 0.865 both), the
+same 3 of 3,000 tracks fail as before (none of 1,500); minimum bias (30 events, ν = 7.6,
+seed 31, truth pattern, 8,343 tracks): 8,317 instead of 8,316 fitted (one long track whose
+fit failed now has χ²/ndf 25), χ²/ndf medians long 0.903, upstream 1.021, VELO-only 0.991 as
+before. The fit takes ×0.86 the CPU time (gsf_components sample, 946 tracks, 5 interleaved
+rounds against 5ec4d3a: 3.25–3.33 → 2.77–2.90 ms per track, medians 3.28 → 2.82); telescope
+electrons (`benchmarks/vs_acts.py`, 2,000 tracks): 536 → 471 µs per track, 0.49 → 0.46 ×
+ACTS's GSF, q/p pull core 0.586, x pull core 0.988 and δ(q/p) core 2.059 % unchanged. Other
+factors (3 interleaved rounds each): 4: ×0.885, unchanged within 1.3 σ; 3: ×0.825, within
+1.5 σ on seed 11 except the beamline share within ±1.2 (0.790 → 0.787 ± 0.001); 2: ×0.74 but
+the first-hit and beamline pull cores narrower by 0.11 ± 0.03 and 0.13 ± 0.03 and the
+last-hit δp/p core wider (2.85 → 3.73 ± 0.24 %, seed 7): a family left with two components
+on average loses the radiation tail's shape; 1 (each family to one component where it can):
+×1.3 the time of all at once (4 rounds; the mixtures it leaves make every later stage costlier). Merging the forward ×
+backward products of one forward component first in the smoothing likewise (families of 12,
+down to 24) was ×0.95 but made the last-VELO-hit q/p pull core 0.063 → 0.202 ± 0.020 and its
+δp/p core 0.97 → 2.35 % (not kept). ``sibling_merge=0`` gives the previous reduction bit for
+bit. Profile after (perf, JIT symbol map, a run with its sample generation): `_reduce` 27 %
+of the samples (the 61 → 12 reductions of the smoothing's products and the 42 → 12 after the
+siblings), `_combine` 9 %, the RK4 of the non-lead components 6 %, `_merge_siblings` 4 %,
+material 3 %.
 
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood

@@ -71,7 +71,8 @@ class GSFOptions:
     `GSF_OUTPUTS` (`pkf.fit.gsf`). After each Bethe–Heitler convolution, the closest pairs of
     siblings (children of one component) are merged first until at most
     `sibling_merge`·`max_components` components remain, then the closest pairs of all
-    (0: all of them at once; `pkf.fit.gsf`, "Reduction")."""
+    (0: all of them at once, the previous reduction; `pkf.fit.gsf`, "Reduction after a
+    convolution")."""
 
     max_components: int = 12
     weight_cut: float = 1e-4
