@@ -9,7 +9,15 @@ from fit_helpers import TruthSample
 from scipy.special import ndtri
 from scipy.stats import kstest
 
-from pkf.fit.gsf import _merge_siblings, _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cdf, sibling_target
+from pkf.fit.gsf import (
+    _merge_siblings,
+    _reduce,
+    fit_batch_gsf,
+    gsf_extrapolator,
+    product_target,
+    qop_mixture_cdf,
+    sibling_target,
+)
 from pkf.fit.reference import reference_extrapolator
 from pkf.fit.options import GSFOptions
 from pkf.fit.seed import TRACK_UPSTREAM
@@ -555,12 +563,16 @@ def test_siblings_merge_only_within_their_family_keeping_the_moments():
     assert count == 4
 
 
-def test_sibling_target_scales_with_max_components_and_can_be_off():
+def test_sibling_and_product_targets_scale_with_max_components_and_can_be_off():
     assert sibling_target(GSFOptions()) == 42
     assert sibling_target(GSFOptions(max_components=4, sibling_merge=2.0)) == 8
     assert sibling_target(GSFOptions(sibling_merge=0.0)) == 0
     with pytest.raises(ValueError):
         GSFOptions(sibling_merge=-1.0)
+    assert product_target(GSFOptions()) == 24
+    assert product_target(GSFOptions(product_merge=0.0)) == 0
+    with pytest.raises(ValueError):
+        GSFOptions(product_merge=-1.0)
 
 
 def _backward_from_scifi_to_velo(share_jacobians):

@@ -54,14 +54,32 @@ factors (3 interleaved rounds each): 4: ×0.885, unchanged within 1.3 σ; 3: ×0
 the first-hit and beamline pull cores narrower by 0.11 ± 0.03 and 0.13 ± 0.03 and the
 last-hit δp/p core wider (2.85 → 3.73 ± 0.24 %, seed 7): a family left with two components
 on average loses the radiation tail's shape; 1 (each family to one component where it can):
-×1.3 the time of all at once (4 rounds; the mixtures it leaves make every later stage costlier). Merging the forward ×
-backward products of one forward component first in the smoothing likewise (families of 12,
-down to 24) was ×0.95 but made the last-VELO-hit q/p pull core 0.063 → 0.202 ± 0.020 and its
-δp/p core 0.97 → 2.35 % (not kept). ``sibling_merge=0`` gives the previous reduction bit for
-bit. Profile after (perf, JIT symbol map, a run with its sample generation): `_reduce` 27 %
-of the samples (the 61 → 12 reductions of the smoothing's products and the 42 → 12 after the
-siblings), `_combine` 9 %, the RK4 of the non-lead components 6 %, `_merge_siblings` 4 %,
-material 3 %.
+×1.3 the time of all at once (4 rounds; the mixtures it leaves make every later stage
+costlier). ``sibling_merge=0`` gives the previous reduction bit for bit. Profile after
+(perf, JIT symbol map, a run with its sample generation): `_reduce` 27 % of the samples (the
+61 → 12 reductions of the smoothing's products and the 42 → 12 after the siblings),
+`_combine` 9 %, the RK4 of the non-lead components 6 %, `_merge_siblings` 4 %, material 3 %.
+
+Reduction of the smoothing's products likewise (`GSFOptions.product_merge`, 2): the
+forward × backward products that share a component of the more precise filter (the smaller
+weighted mean q/p variance, `_qop_variance`) differ only by the other filter's, much wider,
+component, and are merged among themselves first (`_merge_siblings`, the candidates listed
+family by family) down to 2 × 12 = 24, then the closest pairs of all. With the sibling
+reduction (3.5): ×0.93 the CPU time (4 interleaved rounds, 2.86 → 2.66 ms per track,
+medians; factor 1: ×0.91), the electron_fits GSF rows unchanged (seed 7, 1,500 tracks: every
+difference ≤ 0.001 in pull RMS, share, core and ≤ 3e−5 in δp/p core, the last-hit pull RMS
+2.270 → 2.193 ± 0.067, its tail; seed 11, 3,000 tracks: the largest the beamline pull
+core, 0.736 → 0.734 ± 0.001). Grouping by the *forward* component alone (×0.95) made the
+last-VELO-hit q/p pull core 0.063 → 0.202 ± 0.020 and its δp/p core 0.97 → 2.35 %: there the
+backward filter is the precise one, and products of one forward component carry its distinct
+q/p hypotheses. ``product_merge=0`` gives the previous smoothing bit for bit. Both
+reductions together (the defaults): ×0.81 the CPU time against 5ec4d3a (gsf_components
+sample, 946 tracks, 5 interleaved rounds, best of 2 each: 3.21–3.44 → 2.59–2.75 ms per
+track, medians 3.31 → 2.67); telescope electrons (`benchmarks/vs_acts.py`, 2,000 tracks)
+536 → 462 µs per track, 0.49 → 0.45 × ACTS's GSF, q/p pull core 0.586, x pull core 0.988,
+δ(q/p) core 2.059 % unchanged; minimum bias (the sample above) 8,317 of 8,343 fitted as with
+the sibling reduction alone, χ²/ndf medians long 0.903, upstream 1.021 as before, 635
+outliers removed on the 7,203 long tracks instead of 629.
 
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
@@ -373,6 +391,7 @@ class GsfExtrapolator(NamedTuple):
     seed_qop_fraction: float
     peak_window: float
     sibling_target: int
+    product_target: int
 
 
 def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool | None = None,
@@ -394,7 +413,8 @@ def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool 
                            np.ascontiguousarray(mixture.coefficients), float(mixture.t_min),
                            float(mixture.t_max), bool(bethe_heitler), defaults.max_components,
                            defaults.weight_cut, OUTPUTS[defaults.output], bool(share_jacobians),
-                           float(seed_qop_fraction), float(peak_window), sibling_target(defaults))
+                           float(seed_qop_fraction), float(peak_window), sibling_target(defaults),
+                           product_target(defaults))
 
 
 def sibling_target(options: GSFOptions) -> int:
@@ -402,6 +422,13 @@ def sibling_target(options: GSFOptions) -> int:
     convolution (`_merge_siblings`): `options.sibling_merge` × `options.max_components`,
     rounded (0: off)."""
     return int(round(options.sibling_merge * options.max_components))
+
+
+def product_target(options: GSFOptions) -> int:
+    """The component count down to which the smoothing's products of one component of the
+    more precise filter are merged first (`_combine`): `options.product_merge` ×
+    `options.max_components`, rounded (0: off)."""
+    return int(round(options.product_merge * options.max_components))
 
 
 @dataclass
@@ -1341,6 +1368,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     without it. Equal to computing every product first (02cf0ed) up to rounding."""
     x = scratch[3]
     pair = nearest[0]
+    family = nearest[2]  # each kept product's component of the more precise filter
     state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
     scaled = moments[1]  # exp(log weight − largest) of each candidate
     log_bw = moments[2]  # log b_j
@@ -1350,16 +1378,16 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     _pair_solves(fmu, nf, bmu, nb_, s, plu, scale, y, q, det, bmt)
     for j in range(nb_):
         log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
+    by_backward = ctx.product_target > 0 and _qop_variance(bw, bcov, nb_) < _qop_variance(fw, fcov, nf)
     n = 0
-    for i in range(nf):
-        if not fw[i] > 0.0:
-            continue
-        log_fw = math.log(fw[i])
-        for j in range(nb_):
+    for a in range(nb_ if by_backward else nf):  # the candidates of one family consecutive
+        for b in range(nf if by_backward else nb_):
+            i = b if by_backward else a
+            j = a if by_backward else b
             p = i * nb_ + j
-            if not (bw[j] > 0.0 and ok[p] > 0.0):
+            if not (fw[i] > 0.0 and bw[j] > 0.0 and ok[p] > 0.0):
                 continue
-            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
+            pw[n] = math.log(fw[i]) + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
             if math.isnan(pw[n]):
                 continue
             pair[n] = p
@@ -1397,18 +1425,32 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
             w = scaled[c]
             if c == best or (w > 0.0 and w / total >= ctx.weight_cut):
                 pw[m] = w
+                family[m] = pair[c] % nb_ if by_backward else pair[c] // nb_
                 if m != c:
                     copy5(pmu[c], pmu[m])
                     copy55(pcov[c], pcov[m])
                 m += 1
-    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov)
+    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov, family)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _qop_variance(w, cov, n):
+    """Σ w_c·v_c / Σ w_c: the components' mean q/p variance (weighted)."""
+    s = 0.0
+    for c in range(n):
+        s += w[c] * cov[c, 4, 4]
+    return s / _total_weight(w, n)
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov):
+def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov, family=None):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
-    its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
-    n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut)
+    its output state ("core", "mode", "max-weight" or "mean"). Returns the component count.
+    With `family` (the products' families, consecutive, `_combine`) and ctx.product_target,
+    the closest pairs within a family are merged first (`_merge_siblings`)."""
+    n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut, family)
+    if family is not None and ctx.product_target > 0:
+        n = _merge_siblings(w, mu, cov, n, max(ctx.product_target, ctx.max_components), family, nearest, moments)
     n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments)
     if ctx.output == OUTPUT_MEAN:
         _collapse(w, mu, cov, n, out_mean, out_cov)
@@ -1739,7 +1781,8 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     not the output state (`options.gsf.output`, "core" by default) unless the output is "mean"."""
     mixture = options.gsf
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
-                                output=OUTPUTS[mixture.output], sibling_target=sibling_target(mixture))
+                                output=OUTPUTS[mixture.output], sibling_target=sibling_target(mixture),
+                                product_target=product_target(mixture))
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
     velo_only = None if batch.track_type is None else batch.track_type == TRACK_VELO
     qop_prior = None if batch.track_type is None else np.where(
