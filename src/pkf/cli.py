@@ -93,6 +93,14 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--gsf-output", default=GSFOptions.output, show_default=True, type=click.Choice(GSF_OUTPUTS),
               help="GSF: the state written per node: the centre of the mixture's Gaussian core, its mode, "
                    "its heaviest component, or its mean (each with the mixture's q/p variance about it).")
+@click.option("--gsf-sibling-merge", default=GSFOptions.sibling_merge, show_default=True,
+              type=click.FloatRange(min=0.0),
+              help="GSF: after each Bethe–Heitler convolution merge the closest pairs of one component's "
+                   "children first, down to this many times --max-components components (0: all pairs at once).")
+@click.option("--gsf-product-merge", default=GSFOptions.product_merge, show_default=True,
+              type=click.FloatRange(min=0.0),
+              help="GSF smoothing: merge the closest pairs of the products that share a component of the more "
+                   "precise filter first, down to this many times --max-components components (0: all at once).")
 @click.option("--track-states", is_flag=True,
               help="Also write the track_states table: every node's predicted, filtered and smoothed "
                    "state, residuals and χ² (large: ~3 rows per hit and fitter).")
@@ -117,7 +125,8 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
 
     kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"), options.pop("hypothesis"))
     gx2f = GX2FOptions(max_updates=options.pop("gx2f_max_updates"))
-    gsf = GSFOptions(options.pop("max_components"), options.pop("gsf_weight_cut"), options.pop("gsf_output"))
+    gsf = GSFOptions(options.pop("max_components"), options.pop("gsf_weight_cut"), options.pop("gsf_output"),
+                     options.pop("gsf_sibling_merge"), options.pop("gsf_product_merge"))
     config = ReconstructionConfig(fitters=fitters or ("parametrized",), kalman=kalman, gx2f=gx2f, gsf=gsf, **options)
     run = run_reconstruction(dataset, out, config, overwrite=overwrite, workers=workers, scheduler=scheduler,
                              events_per_batch=events_per_batch, echo=lambda line: click.echo(line, err=True))

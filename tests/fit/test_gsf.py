@@ -9,7 +9,15 @@ from fit_helpers import TruthSample
 from scipy.special import ndtri
 from scipy.stats import kstest
 
-from pkf.fit.gsf import _reduce, fit_batch_gsf, gsf_extrapolator, qop_mixture_cdf
+from pkf.fit.gsf import (
+    _merge_siblings,
+    _reduce,
+    fit_batch_gsf,
+    gsf_extrapolator,
+    product_target,
+    qop_mixture_cdf,
+    sibling_target,
+)
 from pkf.fit.reference import reference_extrapolator
 from pkf.fit.options import GSFOptions
 from pkf.fit.seed import TRACK_UPSTREAM
@@ -517,6 +525,54 @@ def test_kl_reduction_reaches_max_components_when_distances_are_nan():
     # nothing written past the n components (index −1 of the scratch)
     assert np.all(nearest[:, n] == 0) and np.all(moments[:, n] == 0)
     assert np.isclose(w[:count].sum(), 1.0)
+
+
+def test_siblings_merge_only_within_their_family_keeping_the_moments():
+    """`_merge_siblings` merges the closest pair of siblings (same parent, consecutive) until
+    the target count: never two components of different parents, the mixture's weight,
+    mean and second moment kept (moment matching), and nothing done at or below the target."""
+    rng = np.random.default_rng(3)
+    parent = np.repeat(np.arange(4), [5, 1, 4, 6])
+    n = parent.size
+    w = rng.uniform(0.1, 1.0, n)
+    w /= w.sum()
+    mu = np.zeros((n, 5))
+    mu[:, :4] = rng.normal(size=4)[None, :] + 0.1 * parent[:, None]
+    mu[:, 0] = parent  # the family, read back from the survivors
+    mu[:, 4] = 1e-4 / rng.uniform(0.3, 1.0, n)
+    cov = np.tile(np.diag([1e-2, 1e-2, 1e-6, 1e-6, 1e-10]), (n, 1, 1))
+    cov[:, 4, 4] *= rng.uniform(0.5, 3.0, n)
+    mean0 = w @ mu
+    second0 = np.einsum("c,cij->ij", w, cov + np.einsum("ci,cj->cij", mu - mean0, mu - mean0))
+    nearest, moments = np.zeros((4, n + 1), dtype=np.int64), np.zeros((5, n))
+    labels = parent.copy()
+    assert _merge_siblings(w.copy(), mu.copy(), cov.copy(), n, n, labels, nearest, moments) == n
+    count = _merge_siblings(w, mu, cov, n, 8, labels, nearest, moments)
+    assert count == 8
+    assert np.isclose(w[:count].sum(), 1.0)
+    mean = w[:count] @ mu[:count]
+    d = mu[:count] - mean
+    second = np.einsum("c,cij->ij", w[:count], cov[:count] + np.einsum("ci,cj->cij", d, d))
+    np.testing.assert_allclose(mean, mean0, rtol=1e-12)
+    np.testing.assert_allclose(second, second0, rtol=1e-9, atol=1e-20)
+    # the x, y, tx, ty means of each family are its parent's: no cross-family merge happened
+    assert len({tuple(np.round(m, 12)) for m in mu[:count, :4]}) == 4
+    # below one component per family nothing is left to merge
+    assert np.array_equal(np.unique(np.rint(mu[:count, 0])), np.arange(4))
+    count = _merge_siblings(w, mu, cov, count, 1, np.rint(mu[:count, 0]).astype(np.int64), nearest, moments)
+    assert count == 4
+
+
+def test_sibling_and_product_targets_scale_with_max_components_and_can_be_off():
+    assert sibling_target(GSFOptions()) == 42
+    assert sibling_target(GSFOptions(max_components=4, sibling_merge=2.0)) == 8
+    assert sibling_target(GSFOptions(sibling_merge=0.0)) == 0
+    with pytest.raises(ValueError):
+        GSFOptions(sibling_merge=-1.0)
+    assert product_target(GSFOptions()) == 24
+    assert product_target(GSFOptions(product_merge=0.0)) == 0
+    with pytest.raises(ValueError):
+        GSFOptions(product_merge=-1.0)
 
 
 def _backward_from_scifi_to_velo(share_jacobians):

@@ -26,6 +26,61 @@ neighbour bookkeeping with vectorised rows of distances on a compact mixture, `_
 O(n²) for the first neighbours, O(n) per merge, in the n ≈ 64 of 12·K components the
 weight cut leaves on lhcb-like electrons).
 
+Reduction after a convolution (issue 18.2, third round): the children of one component (its
+K Bethe–Heitler components, "siblings") share everything but the q/p row and column, and the
+closest pair among a family's K is found from K(K − 1)/2 ≤ 28 distances. So the closest pair
+of *siblings* is merged first (same distance, same moment matching; `_merge_siblings`, each
+family keeping its own closest pair) until at most `GSFOptions.sibling_merge` ×
+`max_components` components remain (3.5 × 12 = 42), then the closest pairs of all
+(`_reduce`) down to 12; ACTS merges the closest pair of all from the start (a cached matrix
+of symmetric KL distances, the same q/p distance). Measured (`benchmarks/electron_fits.py`
+sample, lhcb-like electrons 2–50 GeV, the GSF alone; seed 7, 1,500 tracks, and seed 11, 600
+events, 3,000 tracks; every difference to the all-at-once reduction with its
+paired-bootstrap error over the tracks): factor 3.5 leaves the q/p pull RMS, share within
+±1.2, pull core and δp/p core at the first hit, beamline, last VELO, last UT and last hit
+within 1.5 σ of the differences (seed 11: first-hit pull core 0.661 → 0.661 ± 0.006, δp/p
+core 13.20 → 13.49 ± 0.19 %, last-hit δp/p core 2.802 → 2.795 ± 0.021 %; seed 7: 0.671 →
+0.675 ± 0.011, 15.18 → 15.31 ± 0.21 %, 2.853 → 2.909 ± 0.056 %; the last-VELO-hit pull RMS
+of seed 7, 1.48 → 3.06 ± 1.1, is one track's pull, the share within ±1.2 0.865 both), the
+same 3 of 3,000 tracks fail as before (none of 1,500); minimum bias (30 events, ν = 7.6,
+seed 31, truth pattern, 8,343 tracks): 8,317 instead of 8,316 fitted (one long track whose
+fit failed now has χ²/ndf 25), χ²/ndf medians long 0.903, upstream 1.021, VELO-only 0.991 as
+before. The fit takes ×0.86 the CPU time (gsf_components sample, 946 tracks, 5 interleaved
+rounds against 5ec4d3a: 3.25–3.33 → 2.77–2.90 ms per track, medians 3.28 → 2.82); telescope
+electrons (`benchmarks/vs_acts.py`, 2,000 tracks): 536 → 471 µs per track, 0.49 → 0.46 ×
+ACTS's GSF, q/p pull core 0.586, x pull core 0.988 and δ(q/p) core 2.059 % unchanged. Other
+factors (3 interleaved rounds each): 4: ×0.885, unchanged within 1.3 σ; 3: ×0.825, within
+1.5 σ on seed 11 except the beamline share within ±1.2 (0.790 → 0.787 ± 0.001); 2: ×0.74 but
+the first-hit and beamline pull cores narrower by 0.11 ± 0.03 and 0.13 ± 0.03 and the
+last-hit δp/p core wider (2.85 → 3.73 ± 0.24 %, seed 7): a family left with two components
+on average loses the radiation tail's shape; 1 (each family to one component where it can):
+×1.3 the time of all at once (4 rounds; the mixtures it leaves make every later stage
+costlier). ``sibling_merge=0`` gives the previous reduction bit for bit. Profile after
+(perf, JIT symbol map, a run with its sample generation): `_reduce` 27 % of the samples (the
+61 → 12 reductions of the smoothing's products and the 42 → 12 after the siblings),
+`_combine` 9 %, the RK4 of the non-lead components 6 %, `_merge_siblings` 4 %, material 3 %.
+
+Reduction of the smoothing's products likewise (`GSFOptions.product_merge`, 2): the
+forward × backward products that share a component of the more precise filter (the smaller
+weighted mean q/p variance, `_qop_variance`) differ only by the other filter's, much wider,
+component, and are merged among themselves first (`_merge_siblings`, the candidates listed
+family by family) down to 2 × 12 = 24, then the closest pairs of all. With the sibling
+reduction (3.5): ×0.93 the CPU time (4 interleaved rounds, 2.86 → 2.66 ms per track,
+medians; factor 1: ×0.91), the electron_fits GSF rows unchanged (seed 7, 1,500 tracks: every
+difference ≤ 0.001 in pull RMS, share, core and ≤ 3e−5 in δp/p core, the last-hit pull RMS
+2.270 → 2.193 ± 0.067, its tail; seed 11, 3,000 tracks: the largest the beamline pull
+core, 0.736 → 0.734 ± 0.001). Grouping by the *forward* component alone (×0.95) made the
+last-VELO-hit q/p pull core 0.063 → 0.202 ± 0.020 and its δp/p core 0.97 → 2.35 %: there the
+backward filter is the precise one, and products of one forward component carry its distinct
+q/p hypotheses. ``product_merge=0`` gives the previous smoothing bit for bit. Both
+reductions together (the defaults): ×0.81 the CPU time against 5ec4d3a (gsf_components
+sample, 946 tracks, 5 interleaved rounds, best of 2 each: 3.21–3.44 → 2.59–2.75 ms per
+track, medians 3.31 → 2.67); telescope electrons (`benchmarks/vs_acts.py`, 2,000 tracks)
+536 → 462 µs per track, 0.49 → 0.45 × ACTS's GSF, q/p pull core 0.586, x pull core 0.988,
+δ(q/p) core 2.059 % unchanged; minimum bias (the sample above) 8,317 of 8,343 fitted as with
+the sibling reduction alone, χ²/ndf medians long 0.903, upstream 1.021 as before, 635
+outliers removed on the 7,203 long tracks instead of 629.
+
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
 N(r_c; 0, S_c), then the weights are renormalised and cut.
@@ -335,6 +390,8 @@ class GsfExtrapolator(NamedTuple):
     share_jacobians: bool
     seed_qop_fraction: float
     peak_window: float
+    sibling_target: int
+    product_target: int
 
 
 def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool | None = None,
@@ -356,7 +413,22 @@ def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool 
                            np.ascontiguousarray(mixture.coefficients), float(mixture.t_min),
                            float(mixture.t_max), bool(bethe_heitler), defaults.max_components,
                            defaults.weight_cut, OUTPUTS[defaults.output], bool(share_jacobians),
-                           float(seed_qop_fraction), float(peak_window))
+                           float(seed_qop_fraction), float(peak_window), sibling_target(defaults),
+                           product_target(defaults))
+
+
+def sibling_target(options: GSFOptions) -> int:
+    """The component count down to which siblings are merged first after a Bethe–Heitler
+    convolution (`_merge_siblings`): `options.sibling_merge` × `options.max_components`,
+    rounded (0: off)."""
+    return int(round(options.sibling_merge * options.max_components))
+
+
+def product_target(options: GSFOptions) -> int:
+    """The component count down to which the smoothing's products of one component of the
+    more precise filter are merged first (`_combine`): `options.product_merge` ×
+    `options.max_components`, rounded (0: off)."""
+    return int(round(options.product_merge * options.max_components))
 
 
 @dataclass
@@ -402,9 +474,10 @@ def _merge_into(w, mu, cov, i, j):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _normalise_and_cut(w, mu, cov, n, cut):
-    """Normalise the weights, drop components below `cut` (keeping the largest), compact.
-    Returns the new number of components (0 if no weight is positive)."""
+def _normalise_and_cut(w, mu, cov, n, cut, labels=None):
+    """Normalise the weights, drop components below `cut` (keeping the largest), compact
+    (`labels`, if given, along with the components). Returns the new number of components
+    (0 if no weight is positive)."""
     total = 0.0
     best = -1
     for c in range(n):
@@ -425,6 +498,8 @@ def _normalise_and_cut(w, mu, cov, n, cut):
         if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
             if out != c:
                 _copy_component(w, mu, cov, c, w, mu, cov, out)
+                if labels is not None:
+                    labels[out] = labels[c]
             w[out] /= kept
             out += 1
     return out
@@ -611,6 +686,71 @@ def _reduce(w, mu, cov, n, max_n, nearest, moments):
         nearest_d[i] = near_d
         nn[i] = near
     return count
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _closest_siblings(lo, hi, q, v, iv, alive):
+    """(KL distance, a, b) of the closest pair a < b of live components (alive > 0) among
+    slots lo … hi − 1, the first in (a, b) order among equal distances; (inf, −1, −1) if
+    none is below +inf (NaN never is)."""
+    best = np.inf
+    best_a = -1
+    best_b = -1
+    for a in range(lo, hi):
+        if not alive[a] > 0.0:
+            continue
+        for b in range(a + 1, hi):
+            if alive[b] > 0.0:
+                d = _kl_from_moments(q, v, iv, a, b)
+                if d < best:
+                    best = d
+                    best_a = a
+                    best_b = b
+    return best, best_a, best_b
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
+    """Merge the closest pair of siblings (components with the same `parent`, consecutive:
+    the Bethe–Heitler children of one component, `_material`) in the KL distance of
+    `_reduce` until at most `target` components remain or no sibling pair is left; returns
+    the new count (compact, in the order of the survivors). Siblings share everything but
+    their q/p row and column (module docstring, "Reduction after a convolution"); each family
+    keeps its own closest pair (distance, slots), so a merge recomputes only that family's
+    ≤ K(K − 1)/2 distances. The survivors' parents are not compacted along. `nearest` (4, ≥ n + 1) and `moments`
+    (5, ≥ n) are scratch."""
+    if n <= target:
+        return n
+    start, first, second = nearest[0], nearest[1], nearest[3]
+    best_d, q, v, iv, alive = moments[0], moments[1], moments[2], moments[3], moments[4]
+    n_families = 0
+    for c in range(n):
+        if c == 0 or parent[c] != parent[c - 1]:
+            start[n_families] = c
+            n_families += 1
+        _load_qop_moments(mu, cov, c, q, v, iv)
+        alive[c] = 1.0
+    start[n_families] = n
+    for f in range(n_families):
+        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+    count = n
+    while count > target:
+        f = _first_min(n_families, best_d)[1]
+        if f < 0:
+            break
+        i = first[f]
+        _merge_into(w, mu, cov, i, second[f])
+        _load_qop_moments(mu, cov, i, q, v, iv)
+        alive[second[f]] = 0.0
+        count -= 1
+        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+    out = 0
+    for c in range(n):
+        if alive[c] > 0.0:
+            if out != c:
+                _copy_component(w, mu, cov, c, w, mu, cov, out)
+            out += 1
+    return out
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
@@ -901,11 +1041,13 @@ def _finite_diagonal(cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv):
+def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm, bv, parent):
     """Material of plane k for every component of (w, mu, cov)[:n], written into
     (w2, mu2, cov2): ionisation and scattering (`add_plane_material`), then the
-    Bethe–Heitler convolution. A component whose particle stops in the plane (q/p → ±inf)
-    is dropped. Returns the number of output components (0 if every one stopped)."""
+    Bethe–Heitler convolution; each output component's input component into `parent` (the
+    children of one component are consecutive). A component whose particle stops in the
+    plane (q/p → ±inf) is dropped. Returns the number of output components (0 if every one
+    stopped)."""
     ref = ctx.ref
     out = 0
     for c in range(n):
@@ -930,6 +1072,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
             nb_comp = bethe_heitler_components(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, t, bw, bm, bv)
         if nb_comp == 0:
             _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
+            parent[out] = c
             out += 1
             continue
         qop = mu[c, 4]
@@ -951,6 +1094,7 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                 p2[4, i] *= jq
                 p2[i, 4] *= jq
             p2[4, 4] += add
+            parent[out] = c
             out += 1
     return out
 
@@ -988,9 +1132,13 @@ def _mixture_interact(actor, ext, k, direction):
     """Material and Bethe–Heitler convolution of plane k, weight cut, reduction."""
     w, mu, cov, w2, mu2, cov2 = actor.buf
     ctx = actor.ctx
+    parent = actor.nearest[2]
     n2 = _material(ctx, k, direction, w, mu, cov, actor.count[0], w2, mu2, cov2, actor.scratch[3],
-                   actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2])
-    n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut)
+                   actor.scratch[4], actor.bh[0], actor.bh[1], actor.bh[2], parent)
+    n2 = _normalise_and_cut(w2, mu2, cov2, n2, ctx.weight_cut, parent)
+    if ctx.sibling_target > 0:
+        n2 = _merge_siblings(w2, mu2, cov2, n2, max(ctx.sibling_target, ctx.max_components), parent,
+                             actor.nearest, actor.moments)
     n2 = _reduce(w2, mu2, cov2, n2, ctx.max_components, actor.nearest, actor.moments)
     for c in range(n2):
         _copy_component(w2, mu2, cov2, c, w, mu, cov, c)
@@ -1220,6 +1368,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     without it. Equal to computing every product first (02cf0ed) up to rounding."""
     x = scratch[3]
     pair = nearest[0]
+    family = nearest[2]  # each kept product's component of the more precise filter
     state = moments[0]  # 0: candidate, product not computed; 1: computed; −1: no candidate
     scaled = moments[1]  # exp(log weight − largest) of each candidate
     log_bw = moments[2]  # log b_j
@@ -1229,16 +1378,16 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     _pair_solves(fmu, nf, bmu, nb_, s, plu, scale, y, q, det, bmt)
     for j in range(nb_):
         log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
+    by_backward = ctx.product_target > 0 and _qop_variance(bw, bcov, nb_) < _qop_variance(fw, fcov, nf)
     n = 0
-    for i in range(nf):
-        if not fw[i] > 0.0:
-            continue
-        log_fw = math.log(fw[i])
-        for j in range(nb_):
+    for a in range(nb_ if by_backward else nf):  # the candidates of one family consecutive
+        for b in range(nf if by_backward else nb_):
+            i = b if by_backward else a
+            j = a if by_backward else b
             p = i * nb_ + j
-            if not (bw[j] > 0.0 and ok[p] > 0.0):
+            if not (fw[i] > 0.0 and bw[j] > 0.0 and ok[p] > 0.0):
                 continue
-            pw[n] = log_fw + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
+            pw[n] = math.log(fw[i]) + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
             if math.isnan(pw[n]):
                 continue
             pair[n] = p
@@ -1276,18 +1425,32 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
             w = scaled[c]
             if c == best or (w > 0.0 and w / total >= ctx.weight_cut):
                 pw[m] = w
+                family[m] = pair[c] % nb_ if by_backward else pair[c] // nb_
                 if m != c:
                     copy5(pmu[c], pmu[m])
                     copy55(pcov[c], pcov[m])
                 m += 1
-    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov)
+    return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov, family)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _qop_variance(w, cov, n):
+    """Σ w_c·v_c / Σ w_c: the components' mean q/p variance (weighted)."""
+    s = 0.0
+    for c in range(n):
+        s += w[c] * cov[c, 4, 4]
+    return s / _total_weight(w, n)
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov):
+def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov, family=None):
     """Normalise, cut and reduce the smoothed mixture (w, mu, cov)[:n] in place and write
-    its output state ("core", "mode", "max-weight" or "mean"). Returns the component count."""
-    n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut)
+    its output state ("core", "mode", "max-weight" or "mean"). Returns the component count.
+    With `family` (the products' families, consecutive, `_combine`) and ctx.product_target,
+    the closest pairs within a family are merged first (`_merge_siblings`)."""
+    n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut, family)
+    if family is not None and ctx.product_target > 0:
+        n = _merge_siblings(w, mu, cov, n, max(ctx.product_target, ctx.max_components), family, nearest, moments)
     n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments)
     if ctx.output == OUTPUT_MEAN:
         _collapse(w, mu, cov, n, out_mean, out_cov)
@@ -1531,7 +1694,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
          np.zeros((cap, 5, 5))),
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((25, cap)), np.zeros((45, cap))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
-        np.zeros(n_nodes, dtype=np.int64), np.zeros((2, cap), dtype=np.int64), np.zeros((5, cap)),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros((4, cap + 1), dtype=np.int64), np.zeros((5, cap)),
         np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
@@ -1618,7 +1781,8 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     not the output state (`options.gsf.output`, "core" by default) unless the output is "mean"."""
     mixture = options.gsf
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
-                                output=OUTPUTS[mixture.output])
+                                output=OUTPUTS[mixture.output], sibling_target=sibling_target(mixture),
+                                product_target=product_target(mixture))
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
     velo_only = None if batch.track_type is None else batch.track_type == TRACK_VELO
     qop_prior = None if batch.track_type is None else np.where(

@@ -68,11 +68,18 @@ class GSFOptions:
     """The Gaussian-sum filter's mixture options (ACTS's defaults): at most
     `max_components` components after each reduction, components below `weight_cut` of
     the total weight dropped, and the state written per node, `output`, one of
-    `GSF_OUTPUTS` (`pkf.fit.gsf`)."""
+    `GSF_OUTPUTS` (`pkf.fit.gsf`). After each Bethe–Heitler convolution, the closest pairs of
+    siblings (children of one component) are merged first until at most
+    `sibling_merge`·`max_components` components remain, then the closest pairs of all
+    (0: all of them at once, the previous reduction; `pkf.fit.gsf`, "Reduction after a
+    convolution"); in the smoothing, the products that share a component of the more precise
+    filter likewise, down to `product_merge`·`max_components` (0: off)."""
 
     max_components: int = 12
     weight_cut: float = 1e-4
     output: str = "core"
+    sibling_merge: float = 3.5
+    product_merge: float = 2.0
 
     def __post_init__(self):
         if self.max_components < 1:
@@ -81,6 +88,10 @@ class GSFOptions:
             raise ValueError(f"weight_cut must be in [0, 1), not {self.weight_cut}")
         if self.output not in GSF_OUTPUTS:
             raise ValueError(f"output must be one of {', '.join(GSF_OUTPUTS)}, not {self.output!r}")
+        if not self.sibling_merge >= 0.0:
+            raise ValueError(f"sibling_merge must be >= 0, not {self.sibling_merge}")
+        if not self.product_merge >= 0.0:
+            raise ValueError(f"product_merge must be >= 0, not {self.product_merge}")
 
 
 @dataclass(frozen=True)
