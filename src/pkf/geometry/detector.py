@@ -223,18 +223,24 @@ class Geometry:
 
     def reconstruction_field(self, cache_dir: Path | None = None) -> FieldModel:
         """The field reconstruction uses: the tabulated map if ``[field_map]`` is given
-        (built once and cached on disk), else the analytic model."""
+        (built once and cached on disk), else the analytic model. The map is loaded once per
+        geometry and cache directory: `pkf reconstruct` asks for it three times (the pattern's
+        and the fit's extrapolators, the beamline), and each load of its 23 MB is new memory,
+        which this VM backs with huge pages at up to 0.5 s of system CPU (measured)."""
         spec = self.config.get("field_map")
         if spec is None:
             return self.field
-        return build_field_map(
-            self.field,
-            spacing=float(spec["spacing"]),
-            x_range=tuple(spec["x_range"]),
-            y_range=tuple(spec["y_range"]),
-            z_range=tuple(spec["z_range"]),
-            cache_dir=cache_dir,
-        )
+        loaded = self.__dict__.setdefault("_reconstruction_fields", {})
+        if cache_dir not in loaded:
+            loaded[cache_dir] = build_field_map(
+                self.field,
+                spacing=float(spec["spacing"]),
+                x_range=tuple(spec["x_range"]),
+                y_range=tuple(spec["y_range"]),
+                z_range=tuple(spec["z_range"]),
+                cache_dir=cache_dir,
+            )
+        return loaded[cache_dir]
 
     def subdetector_layers(self, name: str) -> np.ndarray:
         """Indices of the active layers of subdetector `name`."""
