@@ -6,6 +6,7 @@ Set PKF_DEBUG=1 to see the traceback of an internal error.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -19,11 +20,29 @@ import pkf
 from pkf.errors import CtrlC, InputError, NotBuiltYet
 from pkf.geometry import BUILTIN_GEOMETRIES
 from pkf.fit.fitters import FITTER_NAMES
-from pkf.fit.options import GSF_OUTPUTS, HYPOTHESES, SMOOTHERS, GSFOptions, GX2FOptions, KalmanOptions
+from pkf.fit.options import (
+    GSF_OUTPUTS,
+    HYPOTHESES,
+    MAX_MERGE_FACTOR,
+    SMOOTHERS,
+    GSFOptions,
+    GX2FOptions,
+    KalmanOptions,
+)
 from pkf.pipeline.config import PATTERNS
 from pkf.pipeline.reconstruct import EVENTS_PER_BATCH
 from pkf.simulation.generators import GENERATORS
 from pkf.simulation.species import SPECIES_NAMES
+
+
+class FloatRange(click.FloatRange):
+    """click's FloatRange that also refuses NaN (which no bound comparison catches)."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if math.isnan(number):
+            self.fail(f"{value!r} is not a number.", param, ctx)
+        return number
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -88,17 +107,17 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
 @click.option("--max-components", default=GSFOptions.max_components, show_default=True,
               type=click.IntRange(min=1), help="GSF: largest number of Gaussian-mixture components (KL merging).")
 @click.option("--gsf-weight-cut", default=GSFOptions.weight_cut, show_default=True,
-              type=click.FloatRange(min=0.0, max=1.0, max_open=True),
+              type=FloatRange(min=0.0, max=1.0, max_open=True),
               help="GSF: drop mixture components below this share of the total weight.")
 @click.option("--gsf-output", default=GSFOptions.output, show_default=True, type=click.Choice(GSF_OUTPUTS),
               help="GSF: the state written per node: the centre of the mixture's Gaussian core, its mode, "
                    "its heaviest component, or its mean (each with the mixture's q/p variance about it).")
 @click.option("--gsf-sibling-merge", default=GSFOptions.sibling_merge, show_default=True,
-              type=click.FloatRange(min=0.0),
+              type=FloatRange(min=0.0, max=MAX_MERGE_FACTOR),
               help="GSF: after each Bethe–Heitler convolution merge the closest pairs of one component's "
                    "children first, down to this many times --max-components components (0: all pairs at once).")
 @click.option("--gsf-product-merge", default=GSFOptions.product_merge, show_default=True,
-              type=click.FloatRange(min=0.0),
+              type=FloatRange(min=0.0, max=MAX_MERGE_FACTOR),
               help="GSF smoothing: merge the closest pairs of the products that share a component of the more "
                    "precise filter first, down to this many times --max-components components (0: all at once).")
 @click.option("--track-states", is_flag=True,

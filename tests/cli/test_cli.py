@@ -92,3 +92,14 @@ def test_ctrl_c_exits_130_with_what_to_do(tmp_path, capsys, monkeypatch, command
     assert main(args) == 130
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("pkf: interrupted") and hint in err, err
+
+
+@pytest.mark.parametrize("option, value", [("--gsf-weight-cut", "nan"), ("--gsf-sibling-merge", "NaN"),
+                                           ("--gsf-product-merge", "inf"), ("--gsf-sibling-merge", "-1")])
+def test_gsf_factors_out_of_range_are_usage_errors(tmp_path, capsys, option, value):
+    """NaN passes click's FloatRange (no comparison is true); it was an internal error (exit 1)
+    from the options' own check, and inf made the GSF's component count overflow."""
+    code, _, err = _run(capsys, "reconstruct", str(tmp_path / "no-dataset"), "--out", str(tmp_path / "run"),
+                        option, value)
+    assert code == 2 and err.count("\n") == 1 and option in err
+    assert not (tmp_path / "run").exists()

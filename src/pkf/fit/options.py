@@ -63,6 +63,11 @@ class GX2FOptions:
             raise ValueError(f"relative_chi2_change must be > 0, not {self.relative_chi2_change}")
 
 
+#: The largest `GSFOptions.sibling_merge` and `product_merge` (factors of `max_components`):
+#: far more components than a convolution or a smoothing makes, and a count that stays finite.
+MAX_MERGE_FACTOR = 1000.0
+
+
 @dataclass(frozen=True)
 class GSFOptions:
     """The Gaussian-sum filter's mixture options (ACTS's defaults): at most
@@ -88,10 +93,9 @@ class GSFOptions:
             raise ValueError(f"weight_cut must be in [0, 1), not {self.weight_cut}")
         if self.output not in GSF_OUTPUTS:
             raise ValueError(f"output must be one of {', '.join(GSF_OUTPUTS)}, not {self.output!r}")
-        if not self.sibling_merge >= 0.0:
-            raise ValueError(f"sibling_merge must be >= 0, not {self.sibling_merge}")
-        if not self.product_merge >= 0.0:
-            raise ValueError(f"product_merge must be >= 0, not {self.product_merge}")
+        for name in ("sibling_merge", "product_merge"):  # factors of max_components: finite counts
+            if not 0.0 <= getattr(self, name) <= MAX_MERGE_FACTOR:
+                raise ValueError(f"{name} must be in [0, {MAX_MERGE_FACTOR:g}], not {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
