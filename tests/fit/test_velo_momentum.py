@@ -14,7 +14,15 @@ import math
 import numpy as np
 import pytest
 
-from pkf.fit.seed import VELO_P_MAX, VELO_PT_PRIOR, MaterialPlanes, momentum_at_pt, velo_momentum_estimate
+from pkf.fit.seed import (
+    VELO_P_MAX,
+    VELO_PT_PRIOR,
+    MaterialPlanes,
+    _scan_filter,
+    momentum_at_pt,
+    velo_momentum_estimate,
+    velo_scattering_nll,
+)
 from pkf.physics.constants import MASS_PION
 from pkf.physics.materials import highland_theta0
 
@@ -127,3 +135,64 @@ def test_seed_batch_changes_only_velo_only_seeds():
     assert wide.sum() > 40 and spread_new < 0.7 * spread_old, (wide.sum(), spread_new, spread_old)
     forward = sel & (np.hypot(new[:, 2], new[:, 3]) < 0.03)
     assert np.all(1.0 / np.abs(new[forward, 4]) > 2000.0)
+
+
+def _nll_one_momentum(theta0, z, meas, tx, ty, scat_z):
+    """−2 ln L of one momentum, the filter written out per projection as in docs/physics.md
+    (meas: per node a list of (projection, value, variance); theta0 per plane)."""
+    n2 = 1.0 + tx * tx + ty * ty
+    total = 0.0
+    for proj, slope in ((0, tx), (1, ty)):
+        hits = [(zk, m, v) for zk, node in zip(z, meas) for p, m, v in node if p == proj]
+        if not hits:
+            continue
+        u, t, puu, put, ptt = hits[0][1], slope, hits[0][2], 0.0, 1.0
+        zc = hits[0][0]
+        planes = [(zp, th) for zp, th in zip(scat_z, theta0) if zp > zc]
+        for i, (zk, m, v) in enumerate(hits[1:], start=1):
+            while True:
+                z_next, kick = zk, None
+                if planes and planes[0][0] <= zk:
+                    z_next, kick = planes.pop(0)
+                d = z_next - zc
+                u += t * d
+                puu += 2.0 * d * put + d * d * ptt
+                put += d * ptt
+                zc = z_next
+                if kick is None:
+                    break
+                ptt += kick * kick * n2 * (1.0 + slope * slope)
+            r, s = m - u, puu + v
+            if i >= 2:
+                total += r * r / s + math.log(s)
+            ku, kt = puu / s, put / s
+            u, t = u + ku * r, t + kt * r
+            ptt, put, puu = ptt - kt * put, put - ku * put, puu - ku * puu
+    return total
+
+
+def test_scan_filters_side_by_side_equal_one_momentum_at_a_time():
+    """The likelihood scan runs the filters of all its momenta side by side (SIMD over the
+    momenta); each equals the filter of that momentum alone: strip and pixel nodes, nodes
+    without a projection, planes between hits and before the first one."""
+    rng = np.random.default_rng(3)
+    n = 9
+    z = np.sort(rng.uniform(0.0, 300.0, n))
+    hx = np.array([[1.0, 0.0]] * n)
+    hy = np.array([[0.0, 1.0]] * n)
+    n_meas = np.full(n, 2, dtype=np.int64)
+    hx[3], hy[3], n_meas[3] = (0.0, 0.0), (1.0, 0.0), 1  # a y strip only
+    hx[5], hy[5], n_meas[5] = (0.6, 0.0), (0.8, 0.0), 1  # a stereo strip: in neither projection
+    m = rng.normal(0.0, 1.0, (n, 2))
+    sigma = rng.uniform(0.01, 0.05, (n, 2))
+    meas = [[(0 if (hx[k, j], hy[k, j]) == (1.0, 0.0) else 1, m[k, j], sigma[k, j] ** 2)
+             for j in range(n_meas[k]) if (hx[k, j], hy[k, j]) in ((1.0, 0.0), (0.0, 1.0))] for k in range(n)]
+    scat_z = np.sort(np.concatenate([[z[0] - 5.0], rng.uniform(z[0], z[-1], 6)]))
+    momenta = np.exp(np.linspace(np.log(50.0), np.log(2e5), 13))
+    theta0 = np.array([[highland_theta0(p, MASS_PION, 1.0, 0.01 * (1 + i)) for p in momenta]
+                       for i in range(scat_z.size)])
+    f = _scan_filter(momenta.size, n)
+    velo_scattering_nll(theta0, z, n_meas, hx, hy, m, sigma, 0.1, -0.05, scat_z, scat_z.size, f)
+    expected = [_nll_one_momentum(theta0[:, g], z, meas, 0.1, -0.05, scat_z) for g in range(momenta.size)]
+    np.testing.assert_allclose(f.total, expected, rtol=1e-13, atol=0.0)
+    assert np.ptp(f.total) > 10.0  # the momenta differ

@@ -158,9 +158,32 @@ def test_hit_truth_without_momentum(tmp_path):
                        "mc_hits.parquet: column 'qop': row 5 (event_id=0, hit_id=5) is 0.0, must not be 0")
 
 
+def _with_garbage_under_nulls(rng, values, null, dtype):
+    """An Arrow array of ``values`` with nulls where ``null``, random garbage in the values
+    buffer under them (Arrow leaves those unspecified)."""
+    values = np.array(values, dtype=dtype)
+    values[null] = rng.normal(size=int(null.sum())) * 1e3 if dtype == np.float64 else rng.integers(0, 40, null.sum())
+    arrow_type = pa.from_numpy_dtype(np.dtype(dtype))
+    if not null.any():
+        return pa.array(values, type=arrow_type)
+    bitmap = np.packbits(~null, bitorder="little")
+    return pa.Array.from_buffers(arrow_type, values.size, [pa.py_buffer(bitmap.tobytes()), pa.py_buffer(values.tobytes())],
+                                 null_count=int(null.sum()))
+
+
+def _split(rng, table):
+    """The table in 1–4 record batches at random row boundaries, some of them slices."""
+    cuts = np.sort(rng.integers(0, table.num_rows + 1, int(rng.integers(0, 4))))
+    edges = [0, *cuts.tolist(), table.num_rows]
+    return pa.Table.from_batches([b for lo, hi in zip(edges[:-1], edges[1:])
+                                  for b in table.slice(lo, hi - lo).to_batches()], schema=table.schema)
+
+
 def test_compiled_layer_checks_find_the_rows_of_the_numpy_form():
-    """first_bad_layer_rows against the numpy form it replaced (layer, z with NaN, v/sigma_v nulls)."""
-    from pkf.io.area_kernel import first_bad_layer_rows
+    """first_bad_layer_rows, reading the columns in place (nulls through the bitmaps, garbage
+    under them, several record batches), against the numpy form it replaced (layer, z with NaN
+    and nulls, v/sigma_v nulls)."""
+    from pkf.io.area_kernel import first_bad_layer_rows, first_bad_rows
 
     rng = np.random.default_rng(13)
     layer_z, layer_kind = np.asarray(LAYER_Z, float), np.asarray(LAYER_KIND, np.int64)
@@ -169,16 +192,60 @@ def test_compiled_layer_checks_find_the_rows_of_the_numpy_form():
         layer = rng.integers(0, layer_z.size, n)
         z = layer_z[layer] + rng.choice([0.0, 0.0, 0.0, 5e-7, 2e-6, np.nan], n)
         layer[rng.random(n) < 0.02] = rng.choice([-1, layer_z.size, 99])
+        layer_null = rng.random(n) < 0.02
+        z_null = rng.random(n) < 0.02
         strip = layer_kind[np.clip(layer, 0, layer_z.size - 1)] == 1
         v_null = strip ^ (rng.random(n) < 0.02)
         sv_null = strip ^ (rng.random(n) < 0.02)
-        valid = (layer >= 0) & (layer < layer_z.size)
-        index = np.where(valid, layer, 0)
+        layer_read = np.where(layer_null, -1, layer)
+        z_read = np.where(z_null, np.nan, z)
+        valid = (layer_read >= 0) & (layer_read < layer_z.size)
+        index = np.where(valid, layer_read, 0)
         kind_strip = layer_kind[index] == 1
         expected = []
-        for bad in (~valid, valid & ~(np.abs(z - layer_z[index]) <= 1e-6),
+        for bad in (~valid, valid & ~(np.abs(z_read - layer_z[index]) <= 1e-6),
                     valid & (np.where(kind_strip, ~v_null, v_null) | np.where(kind_strip, ~sv_null, sv_null))):
             expected.append(int(np.argmax(bad)) if bad.any() else -1)
-        out = np.empty(3, np.int64)
-        first_bad_layer_rows(layer, z, v_null, sv_null, layer_z, layer_kind, 1e-6, out)
-        assert out.tolist() == expected, trial
+        table = pa.table({"layer": _with_garbage_under_nulls(rng, layer, layer_null, np.int16),
+                          "z": _with_garbage_under_nulls(rng, z, z_null, np.float64),
+                          "u": np.zeros(n), "sigma_u": np.ones(n),
+                          "v": _with_garbage_under_nulls(rng, np.zeros(n), v_null, np.float64),
+                          "sigma_v": _with_garbage_under_nulls(rng, np.ones(n), sv_null, np.float64)})
+        first = first_bad_rows(_split(rng, table), first_bad_layer_rows, 3, layer_z, layer_kind, 1e-6)
+        assert first.tolist() == expected, trial
+
+
+def test_compiled_area_checks_read_nulls_as_nan():
+    """first_bad_area_rows on columns read in place (nulls with garbage under them, several
+    record batches) finds the rows it finds on the same columns converted to numpy with NaN for
+    nulls and the layers widened, in one batch (the form it replaced)."""
+    from pkf.io.area_kernel import AREA_CHECKS, first_bad_area_rows, first_bad_rows
+
+    rng = np.random.default_rng(17)
+    n_layers = 6
+    bounds = [rng.uniform(-60.0, -20.0, n_layers), rng.uniform(20.0, 60.0, n_layers),
+              rng.uniform(-60.0, -20.0, n_layers), rng.uniform(20.0, 60.0, n_layers),
+              rng.choice([0.0, 5.0], n_layers), rng.choice([0.0, 4.0], n_layers), rng.choice([0.0, 4.0], n_layers)]
+    found = np.zeros(len(AREA_CHECKS), int)
+    for trial in range(300):
+        n = int(rng.integers(0, 50))
+        layer = rng.integers(-1, n_layers + 1, n)
+        near_hole = rng.random(n) < 0.2
+        u = np.where(near_hole, rng.normal(0.0, 3.0, n), rng.uniform(-80.0, 80.0, n))
+        v = np.where(near_hole, rng.normal(0.0, 3.0, n), rng.uniform(-80.0, 80.0, n))
+        sigma_u = rng.choice([0.01, 0.1, 500.0, np.nan], n, p=[0.6, 0.3, 0.05, 0.05])
+        sigma_v = rng.choice([0.01, 0.1, 500.0], n, p=[0.6, 0.35, 0.05])
+        nulls = {name: rng.random(n) < rate for name, rate in
+                 (("layer", 0.03), ("u", 0.03), ("sigma_u", 0.03), ("v", 0.4), ("sigma_v", 0.4))}
+        columns = {"layer": (layer, np.int16), "u": (u, np.float64), "sigma_u": (sigma_u, np.float64),
+                   "v": (v, np.float64), "sigma_v": (sigma_v, np.float64)}
+        in_place = pa.table({"z": np.zeros(n)} | {name: _with_garbage_under_nulls(rng, values, nulls[name], dtype)
+                                                  for name, (values, dtype) in columns.items()})
+        converted = pa.table({"z": np.zeros(n)} | {name: np.where(nulls[name], -1 if name == "layer" else np.nan,
+                                                                   values).astype(np.int64 if name == "layer" else float)
+                                                   for name, (values, _) in columns.items()})
+        got = first_bad_rows(_split(rng, in_place), first_bad_area_rows, len(AREA_CHECKS), *bounds, 3.0, 0.1)
+        expected = first_bad_rows(converted, first_bad_area_rows, len(AREA_CHECKS), *bounds, 3.0, 0.1)
+        assert got.tolist() == expected.tolist(), trial
+        found += expected >= 0
+    assert np.all(found > 10), found  # every check finds rows

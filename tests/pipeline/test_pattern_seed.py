@@ -113,3 +113,25 @@ def test_truth_pattern_has_no_estimate(sample):
     with pytest.raises(ValueError):
         Candidates(candidates.event_id, candidates.track_id, candidates.offsets, candidates.hit_row,
                    state=np.zeros((candidates.n_tracks, 5)))
+
+
+def test_full_estimate_replaces_the_least_squares_seed_bitwise(sample):
+    """Where the pattern's estimate replaces every parameter (long and upstream tracks with a q/p),
+    `seed_batch` no longer makes the least-squares fit (its kick integrals through the field
+    map); seeds, covariances and q/p variances of every track are bitwise those of the
+    least-squares seed with the estimate applied afterwards, track by track (the order before)."""
+    from pkf.fit.seed import pattern_seed
+
+    geometry, candidates, batch, _, _, _, _ = sample
+    field = geometry.reconstruction_field()
+    seeds, covs, qop_var = seed_batch(batch, field)
+    lsq = TrackBatch(**{k: v for k, v in vars(batch).items() if k != "pattern"})
+    old_seeds, old_covs, old_qop_var = seed_batch(lsq, field)
+    for t in range(batch.n_tracks):  # the previous order: least squares, then the estimate (~500 tracks)
+        old_qop_var[t] = pattern_seed(old_seeds[t], old_covs[t], old_qop_var[t], batch.track_type[t],
+                                      candidates.state[t], candidates.qop_var[t])
+    replaced = (batch.track_type != TRACK_VELO) & np.isfinite(candidates.state[:, 4])
+    assert replaced.sum() > 150 and (~replaced).sum() > 20
+    np.testing.assert_array_equal(seeds, old_seeds)
+    np.testing.assert_array_equal(covs, old_covs)
+    np.testing.assert_array_equal(qop_var, old_qop_var)

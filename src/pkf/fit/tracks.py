@@ -27,7 +27,6 @@ from pkf.fit.status import STATUS_NAMES, STATUS_NO_SEED, STATUS_OK
 from pkf.fit.seed import (
     TRACK_LONG,
     TRACK_VELO,
-    pattern_seed,
     seed_tracks,
     material_planes,
     track_type_codes,
@@ -246,10 +245,14 @@ def seed_batch(batch: TrackBatch, field, geometry: Geometry | None = None) -> tu
     track_type = batch.track_type
     if track_type is None:
         track_type = np.full(batch.n_tracks, TRACK_LONG, dtype=np.int64)
-    seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-                *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64))
     if batch.pattern is not None:
-        pattern_seed(seeds, covs, qop_var, track_type, batch.pattern.state, batch.pattern.qop_var)
+        pattern_state, pattern_qop_var = batch.pattern.state, batch.pattern.qop_var
+    else:
+        pattern_state, pattern_qop_var = np.full((batch.n_tracks, 5), np.nan), np.full(batch.n_tracks, np.nan)
+    seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
+                *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64),
+                np.ascontiguousarray(pattern_state, dtype=np.float64),
+                np.ascontiguousarray(pattern_qop_var, dtype=np.float64))
     if geometry is not None and np.any(track_type == TRACK_VELO):
         estimates = np.empty((batch.n_tracks, 3))
         velo_momentum_estimates(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,

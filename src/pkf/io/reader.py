@@ -665,39 +665,36 @@ def validate_hit_layers(
         raise ValueError("layer_z and layer_kind must be 1-d arrays of the same length")
     if not np.all((layer_kind == 0) | (layer_kind == 1)):
         raise ValueError("layer_kind values must be 0 (pixel) or 1 (strip)")
-    from pkf.io.area_kernel import LAYER_CHECKS, first_bad_layer_rows
+    from pkf.io.area_kernel import LAYER_CHECKS, first_bad_layer_rows, first_bad_rows
 
     n_layers = layer_z.size
     key = ("event_id", "hit_id")
-    layer = _layer_values(table)
-    z = _float_values(table, "z")
-    v_null = pc.is_null(table.column("v")).to_numpy(zero_copy_only=False)
-    sv_null = pc.is_null(table.column("sigma_v")).to_numpy(zero_copy_only=False)
-    first = np.empty(len(LAYER_CHECKS), np.int64)
-    first_bad_layer_rows(layer, z, v_null, sv_null, layer_z, layer_kind, float(z_tolerance), first)
+    first = first_bad_rows(table, first_bad_layer_rows, len(LAYER_CHECKS), layer_z, layer_kind, float(z_tolerance))
 
     def layers():
         row = int(first[0])
         if row >= 0:
             raise _row_error(source, table, row, "layer", key,
-                             f"is {layer[row]}, not a layer of the geometry (valid: 0 to {n_layers - 1})")
+                             f"is {_layer_at(table, row)}, not a layer of the geometry (valid: 0 to {n_layers - 1})")
 
     def z_values():
         row = int(first[1])
         if row >= 0:
-            expected = layer_z[layer[row]]
+            layer = _layer_at(table, row)
             raise _row_error(source, table, row, "z", key,
-                             f"is {float(z[row])!r} mm but layer {layer[row]} is at z = {float(expected)!r} mm")
+                             f"is {_float_at(table, 'z', row)!r} mm but layer {layer} is at "
+                             f"z = {float(layer_z[layer])!r} mm")
 
     def measured_coordinates():
         row = int(first[2])
         if row >= 0:
-            strip = layer_kind[layer[row]] == 1
-            column = "v" if v_null[row] != strip else "sigma_v"
+            layer = _layer_at(table, row)
+            strip = layer_kind[layer] == 1
+            column = "v" if (not table.column("v")[row].is_valid) != strip else "sigma_v"
             if strip:
-                problem = f"is not null but layer {layer[row]} is a strip layer (v, sigma_v must be null)"
+                problem = f"is not null but layer {layer} is a strip layer (v, sigma_v must be null)"
             else:
-                problem = f"is null but layer {layer[row]} is a pixel layer (v, sigma_v are required)"
+                problem = f"is null but layer {layer} is a pixel layer (v, sigma_v are required)"
             raise _row_error(source, table, row, column, key, problem)
 
     checks = [layers, z_values, measured_coordinates]
@@ -720,54 +717,47 @@ def validate_hit_area(table: pa.Table, area: LayerArea, *, source: Source = "hit
     Raises:
         InputError: one line naming the file, the column and the first bad row.
     """
-    from pkf.io.area_kernel import AREA_CHECKS, first_bad_area_rows
+    from pkf.io.area_kernel import AREA_CHECKS, first_bad_area_rows, first_bad_rows
 
     key = ("event_id", "hit_id", "layer")
-    layer = _layer_values(table)
-    u = _float_values(table, "u")
-    sigma_u = _float_values(table, "sigma_u")
-    v = _float_values(table, "v")  # NaN where null (strips)
-    sigma_v = _float_values(table, "sigma_v")
-    first = np.empty(len(AREA_CHECKS), np.int64)
-    first_bad_area_rows(layer, u, sigma_u, v, sigma_v, area.u_min, area.u_max, area.v_min, area.v_max,
-                        area.hole_radius, area.hole_half_u, area.hole_half_v, AREA_TOLERANCE_SIGMAS, AREA_MARGIN_MM,
-                        first)
+    first = first_bad_rows(table, first_bad_area_rows, len(AREA_CHECKS), area.u_min, area.u_max, area.v_min,
+                           area.v_max, area.hole_radius, area.hole_half_u, area.hole_half_v, AREA_TOLERANCE_SIGMAS,
+                           AREA_MARGIN_MM)
     found = [(int(row), k) for k, row in enumerate(first) if row >= 0]
     if not found:
         return
     row, k = min(found)  # the first bad row of all; of one row, the first check
-    lay = int(layer[row])
+    lay = _layer_at(table, row)
     beyond = f"by more than {AREA_TOLERANCE_SIGMAS:g} σ + {AREA_MARGIN_MM:g} mm"
     extent = {"u": area.u_max[lay] - area.u_min[lay], "v": area.v_max[lay] - area.v_min[lay]}
     bounds = {"u": (area.u_min[lay], area.u_max[lay]), "v": (area.v_min[lay], area.v_max[lay])}
-    values = {"u": u, "v": v, "sigma_u": sigma_u, "sigma_v": sigma_v}
     check = AREA_CHECKS[k]
     if check.startswith("sigma"):
         column = check
-        problem = (f"is {float(values[check][row])!r} mm, larger than layer {lay}'s extent "
+        problem = (f"is {_float_at(table, check, row)!r} mm, larger than layer {lay}'s extent "
                    f"({float(extent[check[-1]])!r} mm): not a measurement error")
     elif check == "hole":
         column = "u"
-        problem = f"is {float(u[row])!r} mm with v = {float(v[row])!r} mm: inside layer {lay}'s beam hole {beyond}"
+        problem = (f"is {_float_at(table, 'u', row)!r} mm with v = {_float_at(table, 'v', row)!r} mm: "
+                   f"inside layer {lay}'s beam hole {beyond}")
     else:
         column = check
         lo, hi = bounds[check]
-        problem = (f"is {float(values[check][row])!r} mm, outside layer {lay}'s active area "
+        problem = (f"is {_float_at(table, check, row)!r} mm, outside layer {lay}'s active area "
                    f"[{float(lo)!r}, {float(hi)!r}] mm {beyond}")
     raise _row_error(source, table, row, column, key, problem)
 
 
-def _layer_values(table: pa.Table) -> np.ndarray:
-    """The ``layer`` column as int64 (−1 where null: reported as null by the schema's rules)."""
-    layer = table.column("layer")
-    if layer.null_count:
-        layer = pc.fill_null(layer, -1)
-    return layer.to_numpy().astype(np.int64)
+def _layer_at(table: pa.Table, row: int) -> int:
+    """The ``layer`` of a row (−1 where null: reported as null by the schema's rules)."""
+    value = table.column("layer")[row].as_py()
+    return -1 if value is None else int(value)
 
 
-def _float_values(table: pa.Table, name: str) -> np.ndarray:
-    """A float64 column as a contiguous numpy array (NaN where null)."""
-    return np.ascontiguousarray(table.column(name).to_numpy(zero_copy_only=False), dtype=np.float64)
+def _float_at(table: pa.Table, name: str, row: int) -> float:
+    """A float column's value at a row (NaN where null)."""
+    value = table.column(name)[row].as_py()
+    return math.nan if value is None else float(value)
 
 
 def pair_keys(

@@ -21,16 +21,23 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-__all__ = ["first_nonfinite", "has_nan"]
+__all__ = ["array_buffers", "first_nonfinite", "has_nan", "valid"]
 
 #: Values summed per block before a block is looked at value by value.
 BLOCK = 1024
 
-_NO_BITMAP = np.zeros(0, dtype=np.uint8)
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+#: No bitmap: no nulls. Read-only like Arrow's buffers, so that the kernels see one array type.
+_NO_BITMAP = _read_only(np.zeros(0, dtype=np.uint8))
 
 
 @nb.njit(cache=True, inline="always")
-def _valid(validity, bit):
+def valid(validity, bit):
+    """Whether the value at bit ``bit`` of an Arrow validity bitmap is not null (empty bitmap: all are)."""
     return validity.size == 0 or (validity[bit >> 3] >> (bit & 7)) & 1 == 1
 
 
@@ -54,15 +61,19 @@ def _first_bad(values, validity, bit_offset, nan_only):
         for i in range(lo, hi):
             v = values[i]
             bad = math.isnan(v) if nan_only else not math.isfinite(v)
-            if bad and _valid(validity, i + bit_offset):
+            if bad and valid(validity, i + bit_offset):
                 return i
     return -1
 
 
-def _buffers(chunk: pa.Array) -> tuple[np.ndarray, np.ndarray, int]:
-    """(values, validity bitmap or empty, the chunk's first bit in it), without copies."""
+def array_buffers(chunk: pa.Array, dtype=np.float64) -> tuple[np.ndarray, np.ndarray, int]:
+    """(values, validity bitmap or empty, the chunk's first bit in it) of a fixed-width array of
+    numpy ``dtype``, without copies, all read-only; the values under nulls are unspecified (read
+    them with the bitmap, `valid`)."""
     validity, data = chunk.buffers()[:2]
-    values = np.frombuffer(data, dtype=np.float64, count=chunk.offset + len(chunk))[chunk.offset:]
+    if data is None:  # no values at all (every row null)
+        return _read_only(np.zeros(len(chunk), dtype=dtype)), _read_only(np.zeros((len(chunk) + 7) // 8, np.uint8)), 0
+    values = np.frombuffer(data, dtype=dtype, count=chunk.offset + len(chunk))[chunk.offset:]
     if chunk.null_count == 0 or validity is None:
         return values, _NO_BITMAP, 0
     return values, np.frombuffer(validity, dtype=np.uint8), chunk.offset
@@ -78,7 +89,7 @@ def _first(column: pa.ChunkedArray | pa.Array, nan_only: bool) -> int | None:
     start = 0
     for chunk in chunks:
         if len(chunk) and chunk.null_count < len(chunk):
-            i = _first_bad(*_buffers(chunk), nan_only)
+            i = _first_bad(*array_buffers(chunk), nan_only)
             if i >= 0:
                 return start + int(i)
         start += len(chunk)
