@@ -58,6 +58,7 @@ def _fit(loop, fitter, batch, seeds, seed_covs, max_outliers):
         r.ndf,
         r.n_outliers,
     )
+    r.set_failed_nodes_nan(batch)  # as `pkf.fit.tracks.run_fitter`: a failed track's nodes are not written
     return r
 
 

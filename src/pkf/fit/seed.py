@@ -203,6 +203,8 @@ def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid
     if not invert_spd(a, inv, work, vec):
         for i in range(5):
             out_state[i] = np.nan
+            for j in range(5):
+                out_cov[i, j] = np.nan  # no seed: nothing uninitialised reaches a fitter
         return np.inf
     matvec5(inv, b, out_state)
     # the fitted line parameters are at z_ref already; tx0/ty0 are the slopes there
