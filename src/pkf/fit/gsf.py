@@ -81,6 +81,34 @@ track, medians 3.31 → 2.67); telescope electrons (`benchmarks/vs_acts.py`, 2,0
 the sibling reduction alone, χ²/ndf medians long 0.903, upstream 1.021 as before, 635
 outliers removed on the 7,203 long tracks instead of 629.
 
+Issue 18.2, fourth round, outputs bitwise identical (node states, covariances, χ², node χ²,
+status, component counts, passes and kept q/p mixtures of the 946 lhcb-like electron tracks
+below, output "core"; of 40 events' tracks with outputs "mode" and "mean"). Profile before (perf, JIT symbol map, the fits
+only): `_reduce` 25 %, `_merge_siblings` 16 %, `_combine` 12 %, the RK4 of the non-lead
+components 10 %, the lead's Jacobian 5 %, material 5 %, exp 5 %, `_normalise_and_cut` 3 %,
+log 2 %. (1) The mode search (`_mode_component`, n² exponentials per smoothed node) passes
+over a component whose density cannot reach the best one (its terms so far plus the heights
+w_j/√v_j of the rest): 17 % of the exponentials remain on the kept mixtures, 1.84 → 1.13 µs
+per call; (2) the smoothing takes log a_i once per forward component instead of once per
+pair, the "core" output each component's density term once instead of three times, the
+Bethe–Heitler evaluation ln t_min and ln t_max once per plane
+(`bethe_heitler_components_logs`). Together ×0.98 (`benchmarks/gsf_components.py` sample,
+946 tracks, 12 components; main and this tree alternating in two processes, CPU time, best
+of 2 per round, 6 rounds: medians 2.66 → 2.63 ms per track, minima 2.61 → 2.56; 5 of 6
+rounds faster). Tried and not kept (bitwise identical merges, synthetic lhcb-like mixtures):
+`_merge_siblings` with a record per component of its closest later sibling, updated per merge
+instead of recomputing the family's K(K − 1)/2 distances (5.05 → 5.22 µs per 92 → 42
+reduction: per merge the moment matching, 25 ns, and the branches cost more than the ≤ 28
+distances); `_reduce` with a renaming loop without the list of components to search again
+(counted instead, then found by a scan): 9.06 → 8.90 µs per 42 → 12, 3.60 → 3.70 µs per
+24 → 12 (the reduction has no hot spot left: a flat profile over ~7 passes of the remaining
+components per merge, ~220 ns per merge); `_pair_product` with the substitution's columns
+innermost (74 ns per product either way). ``product_merge=1`` (the products of one component
+of the more precise filter down to 12, no reduction of all pairs after): ×0.982 (5
+interleaved rounds), `benchmarks/electron_fits.py` GSF rows within 1σ of the paired-bootstrap
+errors on seed 7 (1,500 tracks) but the last-UT-hit q/p pull core 0.970 → 0.973 ± 0.002 on
+seed 11 (3,000 tracks; every δp/p core within 1σ): not made the default.
+
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
 N(r_c; 0, S_c), then the weights are renormalised and cut.
@@ -338,7 +366,7 @@ from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_f
 from pkf.jit import NO_REFCOUNT
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
-    bethe_heitler_components,
+    bethe_heitler_components_logs,
     load_bethe_heitler_mixture,
 )
 from pkf.physics.transport import rk4_propagate_map_many, rk4_propagate_scalar, rk4_transport_jacobian
@@ -823,28 +851,80 @@ def _largest(w, n):
     return best
 
 
+#: `_mode_component`: a component is passed over when its density plus the bound of the
+#: terms not yet taken, times this, is below the best density (the sums' rounding is
+#: below 3nε ≈ 1e−14 relative for n ≤ 100 components).
+_MODE_BOUND_MARGIN = 1.0 + 1e-9
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _mode_term(w, mu, cov, root, c, j):
+    """Component j's term of the q/p marginal density at component c's q/p mean (×√2π)."""
+    v = cov[j, 4, 4]
+    d = mu[c, 4] - mu[j, 4]
+    return w[j] * math.exp(-0.5 * d * d / v) / root[j]
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _mode_component(w, mu, cov, n, root):
-    """The component at whose q/p mean the mixture's q/p marginal density is highest
-    (root: scratch, ≥ n, for each component's q/p width √v, taken once)."""
+def _mode_component(w, mu, cov, n, scratch, order):
+    """The component at whose q/p mean the mixture's q/p marginal density is highest (the
+    first among equal densities; the first component if no density is a number).
+
+    Each density is the sum over j, in component order, of w_j·exp(−(μ_c − μ_j)²/2v_j)/√v_j
+    (`_mode_term`). Term j is at most its height h_j = w_j/√v_j (exp ≤ 1), so a component
+    whose terms taken so far plus the heights of the others stay below the best density
+    cannot be the mode and is passed over (bound with `_MODE_BOUND_MARGIN`, so the choice
+    is that of computing every density, bitwise): the tallest component is taken first,
+    every other takes its terms tallest first. On lhcb-like electrons 17 % of the n²
+    exponentials remain (issue 18.2, fourth round). A density computed to the end is
+    summed again in component order, as computing it directly does. `scratch` (4, ≥ n)
+    and `order` (≥ n, int) are scratch."""
+    root, height, suffix, term = scratch[0], scratch[1], scratch[2], scratch[3]
+    bounded = True  # no negative weight (the margin is relative)
     for j in range(n):
         root[j] = math.sqrt(cov[j, 4, 4])
+        h = w[j] / root[j]
+        height[j] = h if h > 0.0 else 0.0  # NaN: every density is NaN, any choice passed over is right
+        bounded = bounded and not w[j] < 0.0
+        order[j] = j
+    for a in range(1, n):  # tallest first (insertion sort; the order only decides what is passed over)
+        k = order[a]
+        b = a - 1
+        while b >= 0 and height[order[b]] < height[k]:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = k
+    total = 0.0
+    for r in range(n - 1, -1, -1):
+        total += height[order[r]]
+        suffix[r] = total  # Σ heights of order[r:]
+    tallest = order[0]
     best = 0
     best_density = -1.0
-    for c in range(n):
+    for step in range(n):
+        c = tallest if step == 0 else step - 1 + (1 if step - 1 >= tallest else 0)
+        partial = 0.0
+        passed = False
+        for r in range(n):
+            if bounded and (partial + suffix[r]) * _MODE_BOUND_MARGIN < best_density:
+                passed = True
+                break
+            j = order[r]
+            term[j] = _mode_term(w, mu, cov, root, c, j)
+            partial += term[j]
+        if passed:
+            continue
         density = 0.0
         for j in range(n):
-            v = cov[j, 4, 4]
-            d = mu[c, 4] - mu[j, 4]
-            density += w[j] * math.exp(-0.5 * d * d / v) / root[j]
-        if density > best_density:
+            density += term[j]
+        if density > best_density or (density == best_density and c < best):
             best_density = density
             best = c
     return best
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _core(w, mu, cov, n, q, var, out_mean, out_cov):
+def _core(w, mu, cov, n, q, var, out_mean, out_cov, density):
     """Output "core": the Gaussian core of the mixture's q/p marginal f and the other
     parameters given q/p at its centre (see the module docstring).
 
@@ -856,7 +936,8 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     m_c = μ_c + P_c[:, 4]/v_c·(q − μ_c) and covariances P_c − P_c[:, 4]P_c[4, :]/v_c,
     slopes β = Σ r_c P_c[:, 4]/v_c; output x = Σ r_c m_c, C_xx = Σ r_c (conditional
     covariance + (m_c − x)(m_c − x)ᵀ) + ββᵀσ², C_xq = βσ², C_qq = σ². One component:
-    exactly that component."""
+    exactly that component. `density` (≥ n) is scratch: each component's w_c·N(q; μ_c, v_c)·√(2π),
+    taken once for the sum and both passes over the components."""
     if n == 1:
         copy5(mu[0], out_mean)
         copy55(cov[0], out_cov)
@@ -891,7 +972,8 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     total = 0.0
     for c in range(n):
         d = q - mu[c, 4]
-        total += w[c] * math.exp(-0.5 * d * d / cov[c, 4, 4]) / math.sqrt(cov[c, 4, 4])
+        density[c] = w[c] * math.exp(-0.5 * d * d / cov[c, 4, 4]) / math.sqrt(cov[c, 4, 4])
+        total += density[c]
     for i in range(5):
         out_mean[i] = 0.0
         for j in range(5):
@@ -900,14 +982,14 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     for c in range(n):
         vc = cov[c, 4, 4]
         d = q - mu[c, 4]
-        r = w[c] * math.exp(-0.5 * d * d / vc) / math.sqrt(vc) / total
+        r = density[c] / total
         for i in range(4):
             out_mean[i] += r * (mu[c, i] + cov[c, i, 4] / vc * d)
             beta[i] += r * cov[c, i, 4] / vc
     for c in range(n):
         vc = cov[c, 4, 4]
         d = q - mu[c, 4]
-        r = w[c] * math.exp(-0.5 * d * d / vc) / math.sqrt(vc) / total
+        r = density[c] / total
         for i in range(4):
             di = mu[c, i] + cov[c, i, 4] / vc * d - out_mean[i]
             for j in range(4):
@@ -1049,6 +1131,8 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
     plane (q/p → ±inf) is dropped. Returns the number of output components (0 if every one
     stopped)."""
     ref = ctx.ref
+    log_t_min = math.log(ctx.bh_t_min)
+    log_t_max = math.log(ctx.bh_t_max)
     out = 0
     for c in range(n):
         set_identity(jm)
@@ -1069,7 +1153,8 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                 pc[i, j] += noise[i, j]
         nb_comp = 0
         if ctx.bethe_heitler and t > 0.0 and mu[c, 4] != 0.0 and math.isfinite(mu[c, 4]):
-            nb_comp = bethe_heitler_components(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, t, bw, bm, bv)
+            nb_comp = bethe_heitler_components_logs(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, log_t_min,
+                                                    log_t_max, t, bw, bm, bv)
         if nb_comp == 0:
             _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
             parent[out] = c
@@ -1376,8 +1461,11 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     _pair_sums(fcov, nf, bcov, nb_, s, plu)
     _pair_factors(nf * nb_, s, plu, scale, ok)
     _pair_solves(fmu, nf, bmu, nb_, s, plu, scale, y, q, det, bmt)
+    log_fw = moments[3]  # log a_i
     for j in range(nb_):
         log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
+    for i in range(nf):
+        log_fw[i] = math.log(fw[i]) if fw[i] > 0.0 else 0.0
     by_backward = ctx.product_target > 0 and _qop_variance(bw, bcov, nb_) < _qop_variance(fw, fcov, nf)
     n = 0
     for a in range(nb_ if by_backward else nf):  # the candidates of one family consecutive
@@ -1387,7 +1475,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
             p = i * nb_ + j
             if not (fw[i] > 0.0 and bw[j] > 0.0 and ok[p] > 0.0):
                 continue
-            pw[n] = math.log(fw[i]) + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
+            pw[n] = log_fw[i] + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
             if math.isnan(pw[n]):
                 continue
             pair[n] = p
@@ -1458,9 +1546,10 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov, family=N
         copy5(mu[_largest(w, n)], out_mean)
         _second_moment(w, mu, cov, n, out_mean, out_cov)
     else:
-        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n, moments[0]), ctx.peak_window, out_mean, out_cov)
+        mode = _mode_component(w, mu, cov, n, moments[:4], nearest[0])
+        _peak(w, mu, cov, n, mode, ctx.peak_window, out_mean, out_cov)
         if ctx.output == OUTPUT_CORE:
-            _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov)
+            _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov, moments[0])
     return n
 
 
