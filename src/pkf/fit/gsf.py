@@ -95,7 +95,13 @@ Bethe–Heitler evaluation ln t_min and ln t_max once per plane
 (`bethe_heitler_components_logs`). Together ×0.98 (`benchmarks/gsf_components.py` sample,
 946 tracks, 12 components; main and this tree alternating in two processes, CPU time, best
 of 2 per round, 6 rounds: medians 2.66 → 2.63 ms per track, minima 2.61 → 2.56; 5 of 6
-rounds faster). Tried and not kept (bitwise identical merges, synthetic lhcb-like mixtures):
+rounds faster). (3) `_first_min`, the search of every row of `_reduce` and of the families
+of `_merge_siblings`, without branches at all: its four lanes were combined by `or`/`and`,
+whose short circuits the compiler made branches on which lane holds the minimum (data, so
+mispredicted), and its `while` loop's tail wrapped negative indices; ×0.75–0.88 per
+42 → 12 reduction, ×0.78 per 24 → 12. With (1)–(2): ×0.91 (the same protocol, 6 rounds:
+medians 2.70 → 2.45 ms per track, minima 2.69 → 2.45; every round ×0.91–0.94). Tried and
+not kept (bitwise identical merges, synthetic lhcb-like mixtures):
 `_merge_siblings` with a record per component of its closest later sibling, updated per merge
 instead of recomputing the family's K(K − 1)/2 distances (5.05 → 5.22 µs per 92 → 42
 reduction: per merge the moment matching, 25 ns, and the branches cost more than the ≤ 28
@@ -103,7 +109,9 @@ distances); `_reduce` with a renaming loop without the list of components to sea
 (counted instead, then found by a scan): 9.06 → 8.90 µs per 42 → 12, 3.60 → 3.70 µs per
 24 → 12 (the reduction has no hot spot left: a flat profile over ~7 passes of the remaining
 components per merge, ~220 ns per merge); `_pair_product` with the substitution's columns
-innermost (74 ns per product either way). ``product_merge=1`` (the products of one component
+innermost (74 ns per product either way); `_closest_siblings` without branches (the
+distances of dead components masked: ×0.81 on the products' families of ≤ 12, ×1.34 on the
+Bethe–Heitler families of ≤ 8). ``product_merge=1`` (the products of one component
 of the more precise filter down to 12, no reduction of all pairs after): ×0.982 (5
 interleaved rounds), `benchmarks/electron_fits.py` GSF rows within 1σ of the paired-bootstrap
 errors on seed 7 (1,500 tracks) but the last-UT-hit q/p pull core 0.970 → 0.973 ± 0.002 on
@@ -577,8 +585,10 @@ def _kl_row(i, n, q, v, iv, dist):
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _precedes(d, k, best_d, best):
     """(d, k) if it precedes (best_d, best) — a smaller distance, or an equal one at a
-    smaller index — else (best_d, best); NaN never precedes."""
-    c = d < best_d or (d == best_d and k < best)
+    smaller index — else (best_d, best); NaN never precedes. Bitwise operators, not `or`
+    and `and`: their short circuits were branches, which the predictor missed (the lane
+    that holds the minimum is data)."""
+    c = (d < best_d) | ((d == best_d) & (k < best))
     return (d if c else best_d), (k if c else best)
 
 
@@ -588,11 +598,16 @@ def _first_min(n, dist):
     NaN never wins): what `_closer` offered the values in index order gives. One pass
     without branches: four interleaved running minima, each with the first index where
     it was reached (strict <, so the first of equal values stays), then the four combined
-    by value and, for equal values, by index (`_precedes`). The branchy single pass was
-    ×1.2 slower in `_reduce` (64–100 components); the two passes before (the minimum, then
-    a scan for its first index, whose exit the branch predictor misses) were slower too
-    (with the orphan list of `_reduce`, ×0.91 per reduction together). Eight lanes instead
-    of four: no faster (17.7 against 17.3 µs per reduction)."""
+    by value and, for equal values, by index (`_precedes`, without branches). The branchy
+    single pass was ×1.2 slower in `_reduce` (64–100 components); the two passes before (the
+    minimum, then a scan for its first index, whose exit the branch predictor misses) were
+    slower too (with the orphan list of `_reduce`, ×0.91 per reduction together). Eight
+    lanes instead of four: no faster (17.7 against 17.3 µs per reduction). The lanes run
+    over blocks of four (`range`, so the compiler knows the indices are not negative: the
+    `while` loop before had a wrap-around of negative indices in its tail) and the last
+    n mod 4 values join lane 0; with `_precedes` without branches, ×0.75–0.88 per 42 → 12
+    reduction (9.3 → 7.0 µs, minima of 9 alternating rounds; medians of the ratio 0.88) and
+    ×0.78 per 24 → 12 (issue 18.2, fourth round)."""
     m0 = np.inf
     m1 = np.inf
     m2 = np.inf
@@ -601,8 +616,8 @@ def _first_min(n, dist):
     i1 = -1
     i2 = -1
     i3 = -1
-    k = 0
-    while k + 4 <= n:
+    for block in range(n // 4):
+        k = 4 * block
         x0 = dist[k]
         x1 = dist[k + 1]
         x2 = dist[k + 2]
@@ -619,13 +634,11 @@ def _first_min(n, dist):
         i1 = k + 1 if c1 else i1
         i2 = k + 2 if c2 else i2
         i3 = k + 3 if c3 else i3
-        k += 4
-    while k < n:
+    for k in range(n - n % 4, n):
         x0 = dist[k]
         c0 = x0 < m0
         m0 = x0 if c0 else m0
         i0 = k if c0 else i0
-        k += 1
     m0, i0 = _precedes(m1, i1, m0, i0)
     m0, i0 = _precedes(m2, i2, m0, i0)
     return _precedes(m3, i3, m0, i0)
