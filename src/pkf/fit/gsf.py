@@ -100,8 +100,15 @@ of `_merge_siblings`, without branches at all: its four lanes were combined by `
 whose short circuits the compiler made branches on which lane holds the minimum (data, so
 mispredicted), and its `while` loop's tail wrapped negative indices; ×0.75–0.88 per
 42 → 12 reduction, ×0.78 per 24 → 12. With (1)–(2): ×0.91 (the same protocol, 6 rounds:
-medians 2.70 → 2.45 ms per track, minima 2.69 → 2.45; every round ×0.91–0.94). Tried and
-not kept (bitwise identical merges, synthetic lhcb-like mixtures):
+medians 2.70 → 2.45 ms per track, minima 2.69 → 2.45; every round ×0.91–0.94). (4) The
+weight cut (`_normalise_and_cut`) decides with bitwise operators (×0.73 on 92 components, a
+third below the cut), and the smoothing's family merges take each family's closest pair
+row by row without branches (`_closest_siblings_by_rows`; kept branchy after a convolution,
+where it was slower). With (1)–(3): ×0.88 (6 rounds: medians 2.76 → 2.42 ms per track,
+minima 2.72 → 2.42; every round ×0.88–0.89). Profile after (3) (perf, the fits only):
+`_reduce` 20 %, `_merge_siblings` 17 %, `_combine` 16 %, the RK4 of the non-lead components
+11 %, material 6 %, the lead's Jacobian 6 %, exp 4 %, `_transport` 3 %, the weight cut 3 %.
+Tried and not kept (bitwise identical merges, synthetic lhcb-like mixtures):
 `_merge_siblings` with a record per component of its closest later sibling, updated per merge
 instead of recomputing the family's K(K − 1)/2 distances (5.05 → 5.22 µs per 92 → 42
 reduction: per merge the moment matching, 25 ns, and the branches cost more than the ≤ 28
@@ -109,9 +116,8 @@ distances); `_reduce` with a renaming loop without the list of components to sea
 (counted instead, then found by a scan): 9.06 → 8.90 µs per 42 → 12, 3.60 → 3.70 µs per
 24 → 12 (the reduction has no hot spot left: a flat profile over ~7 passes of the remaining
 components per merge, ~220 ns per merge); `_pair_product` with the substitution's columns
-innermost (74 ns per product either way); `_closest_siblings` without branches (the
-distances of dead components masked: ×0.81 on the products' families of ≤ 12, ×1.34 on the
-Bethe–Heitler families of ≤ 8). ``product_merge=1`` (the products of one component
+innermost (74 ns per product either way); `_closest_siblings` without branches after a
+convolution too (×1.2–1.5 slower there on synthetic families of ≤ 8). ``product_merge=1`` (the products of one component
 of the more precise filter down to 12, no reduction of all pairs after): ×0.982 (5
 interleaved rounds), `benchmarks/electron_fits.py` GSF rows within 1σ of the paired-bootstrap
 errors on seed 7 (1,500 tracks) but the last-UT-hit q/p pull core 0.970 → 0.973 ± 0.002 on
@@ -526,12 +532,12 @@ def _normalise_and_cut(w, mu, cov, n, cut, labels=None):
     if not total > 0.0:
         return 0
     kept = 0.0
-    for c in range(n):
-        if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
-            kept += w[c]
+    for c in range(n):  # bitwise operators: the short circuits were branches on the data (the cut)
+        keep = ((w[c] > 0.0) & (w[c] / total >= cut)) | (c == best)
+        kept += w[c] if keep else 0.0
     out = 0
     for c in range(n):
-        if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
+        if ((w[c] > 0.0) & (w[c] / total >= cut)) | (c == best):
             if out != c:
                 _copy_component(w, mu, cov, c, w, mu, cov, out)
                 if labels is not None:
@@ -750,8 +756,44 @@ def _closest_siblings(lo, hi, q, v, iv, alive):
     return best, best_a, best_b
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _closest_siblings_by_rows(lo, hi, q, v, iv, alive):
+    """`_closest_siblings` (the same pair, bitwise) without branches: each row's closest later
+    live component, then the rows in order (strict <, so the first pair stays). Faster on
+    the smoothing's families (the products of one component, up to 12: ×0.77 per 72 → 24
+    reduction of synthetic products), slower on the Bethe–Heitler families of ≤ 8 (×1.2–1.5)."""
+    best = np.inf
+    best_a = -1
+    best_b = -1
+    for a in range(lo, hi):
+        qa = q[a]
+        va = v[a]
+        iva = iv[a]
+        row = np.inf
+        row_b = -1
+        for b in range(a + 1, hi):
+            d = qa - q[b]
+            x = (va - v[b]) * (iv[b] - iva) + d * d * (iva + iv[b])
+            c = (x < row) & (alive[b] > 0.0)
+            row = x if c else row
+            row_b = b if c else row_b
+        c = (row < best) & (alive[a] > 0.0)
+        best = row if c else best
+        best_a = a if c else best_a
+        best_b = row_b if c else best_b
+    return best, best_a, best_b
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _closest_family_pair(lo, hi, q, v, iv, alive, by_rows):
+    """`_closest_siblings_by_rows` if by_rows, else `_closest_siblings`."""
+    if by_rows:
+        return _closest_siblings_by_rows(lo, hi, q, v, iv, alive)
+    return _closest_siblings(lo, hi, q, v, iv, alive)
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
+def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments, by_rows=False):
     """Merge the closest pair of siblings (components with the same `parent`, consecutive:
     the Bethe–Heitler children of one component, `_material`) in the KL distance of
     `_reduce` until at most `target` components remain or no sibling pair is left; returns
@@ -759,7 +801,8 @@ def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
     their q/p row and column (module docstring, "Reduction after a convolution"); each family
     keeps its own closest pair (distance, slots), so a merge recomputes only that family's
     ≤ K(K − 1)/2 distances. The survivors' parents are not compacted along. `nearest` (4, ≥ n + 1) and `moments`
-    (5, ≥ n) are scratch."""
+    (5, ≥ n) are scratch. `by_rows`: the closest pairs by `_closest_siblings_by_rows` (the
+    same pairs)."""
     if n <= target:
         return n
     start, first, second = nearest[0], nearest[1], nearest[3]
@@ -773,7 +816,7 @@ def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
         alive[c] = 1.0
     start[n_families] = n
     for f in range(n_families):
-        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+        best_d[f], first[f], second[f] = _closest_family_pair(start[f], start[f + 1], q, v, iv, alive, by_rows)
     count = n
     while count > target:
         f = _first_min(n_families, best_d)[1]
@@ -784,7 +827,7 @@ def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
         _load_qop_moments(mu, cov, i, q, v, iv)
         alive[second[f]] = 0.0
         count -= 1
-        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+        best_d[f], first[f], second[f] = _closest_family_pair(start[f], start[f + 1], q, v, iv, alive, by_rows)
     out = 0
     for c in range(n):
         if alive[c] > 0.0:
@@ -1551,7 +1594,8 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov, family=N
     the closest pairs within a family are merged first (`_merge_siblings`)."""
     n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut, family)
     if family is not None and ctx.product_target > 0:
-        n = _merge_siblings(w, mu, cov, n, max(ctx.product_target, ctx.max_components), family, nearest, moments)
+        n = _merge_siblings(w, mu, cov, n, max(ctx.product_target, ctx.max_components), family, nearest, moments,
+                            True)
     n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments)
     if ctx.output == OUTPUT_MEAN:
         _collapse(w, mu, cov, n, out_mean, out_cov)
