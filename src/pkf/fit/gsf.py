@@ -83,45 +83,48 @@ outliers removed on the 7,203 long tracks instead of 629.
 
 Issue 18.2, fourth round, outputs bitwise identical (node states, covariances, χ², node χ²,
 status, component counts, passes and kept q/p mixtures of the 946 lhcb-like electron tracks
-below, output "core"; of 40 events' tracks with outputs "mode" and "mean"). Profile before (perf, JIT symbol map, the fits
-only): `_reduce` 25 %, `_merge_siblings` 16 %, `_combine` 12 %, the RK4 of the non-lead
-components 10 %, the lead's Jacobian 5 %, material 5 %, exp 5 %, `_normalise_and_cut` 3 %,
-log 2 %. (1) The mode search (`_mode_component`, n² exponentials per smoothed node) passes
-over a component whose density cannot reach the best one (its terms so far plus the heights
-w_j/√v_j of the rest): 17 % of the exponentials remain on the kept mixtures, 1.84 → 1.13 µs
-per call; (2) the smoothing takes log a_i once per forward component instead of once per
-pair, the "core" output each component's density term once instead of three times, the
-Bethe–Heitler evaluation ln t_min and ln t_max once per plane
+below, output "core"; of 40 events' tracks with outputs "mode" and "mean"). Profile before
+(perf, JIT symbol map, the fits only): `_reduce` 25 %, `_merge_siblings` 16 %, `_combine` 12
+%, the RK4 of the non-lead components 10 %, the lead's Jacobian 5 %, material 5 %, exp 5 %,
+`_normalise_and_cut` 3 %, log 2 %. (1) The mode search (`_mode_component`, n² exponentials
+per smoothed node) passes over a component whose density cannot reach the best one (its
+terms so far plus the heights w_j/√v_j of the rest): 17 % of the exponentials remain on the
+kept mixtures, 1.84 → 1.13 µs per call; (2) the smoothing takes log a_i once per forward
+component instead of once per pair, the "core" output each component's density term once
+instead of three times, the Bethe–Heitler evaluation ln t_min and ln t_max once per plane
 (`bethe_heitler_components_logs`). Together ×0.98 (`benchmarks/gsf_components.py` sample,
 946 tracks, 12 components; main and this tree alternating in two processes, CPU time, best
 of 2 per round, 6 rounds: medians 2.66 → 2.63 ms per track, minima 2.61 → 2.56; 5 of 6
 rounds faster). (3) `_first_min`, the search of every row of `_reduce` and of the families
 of `_merge_siblings`, without branches at all: its four lanes were combined by `or`/`and`,
 whose short circuits the compiler made branches on which lane holds the minimum (data, so
-mispredicted), and its `while` loop's tail wrapped negative indices; ×0.75–0.88 per
-42 → 12 reduction, ×0.78 per 24 → 12. With (1)–(2): ×0.91 (the same protocol, 6 rounds:
-medians 2.70 → 2.45 ms per track, minima 2.69 → 2.45; every round ×0.91–0.94). (4) The
-weight cut (`_normalise_and_cut`) decides with bitwise operators (×0.73 on 92 components, a
-third below the cut), and the smoothing's family merges take each family's closest pair
-row by row without branches (`_closest_siblings_by_rows`; kept branchy after a convolution,
-where it was slower). With (1)–(3): ×0.88 (6 rounds: medians 2.76 → 2.42 ms per track,
-minima 2.72 → 2.42; every round ×0.88–0.89). Profile after (3) (perf, the fits only):
-`_reduce` 20 %, `_merge_siblings` 17 %, `_combine` 16 %, the RK4 of the non-lead components
-11 %, material 6 %, the lead's Jacobian 6 %, exp 4 %, `_transport` 3 %, the weight cut 3 %.
-Tried and not kept (bitwise identical merges, synthetic lhcb-like mixtures):
-`_merge_siblings` with a record per component of its closest later sibling, updated per merge
-instead of recomputing the family's K(K − 1)/2 distances (5.05 → 5.22 µs per 92 → 42
+mispredicted), and its `while` loop's tail wrapped negative indices; ×0.75–0.88 per 42 → 12
+reduction, ×0.78 per 24 → 12 (with (1)–(2) ×0.91 against a main that had moved by a seeding
+commit meanwhile). (4) The weight cut (`_normalise_and_cut`) decides with bitwise operators
+(×0.73 on 92 components, a third below the cut), and the smoothing's family merges take each
+family's closest pair row by row without branches (`_closest_siblings_by_rows`; kept branchy
+after a convolution, where it was slower). (1)–(4) together against e1b2a3d (the same
+protocol, 6 rounds): ×0.873, medians 2.74 → 2.39 ms per track, minima 2.69 → 2.35, every
+round ×0.855–0.885; outputs bitwise e1b2a3d's also with 4 and 16 components (40 events) and
+for the telescope electrons (`benchmarks/vs_acts.py`-like sample, 60 events). The acceptance
+target of issue 18.2 (≤ 1 ms per track) is not reached. Profile after (3) (perf, the fits
+only): `_reduce` 20 %, `_merge_siblings` 17 %, `_combine` 16 %, the RK4 of the non-lead
+components 11 %, material 6 %, the lead's Jacobian 6 %, exp 4 %, `_transport` 3 %, the
+weight cut 3 %. Tried and not kept (bitwise identical merges, synthetic lhcb-like mixtures):
+`_merge_siblings` with a record per component of its closest later sibling, updated per
+merge instead of recomputing the family's K(K − 1)/2 distances (5.05 → 5.22 µs per 92 → 42
 reduction: per merge the moment matching, 25 ns, and the branches cost more than the ≤ 28
 distances); `_reduce` with a renaming loop without the list of components to search again
-(counted instead, then found by a scan): 9.06 → 8.90 µs per 42 → 12, 3.60 → 3.70 µs per
-24 → 12 (the reduction has no hot spot left: a flat profile over ~7 passes of the remaining
+(counted instead, then found by a scan): 9.06 → 8.90 µs per 42 → 12, 3.60 → 3.70 µs per 24 →
+12 (the reduction has no hot spot left: a flat profile over ~7 passes of the remaining
 components per merge, ~220 ns per merge); `_pair_product` with the substitution's columns
 innermost (74 ns per product either way); `_closest_siblings` without branches after a
-convolution too (×1.2–1.5 slower there on synthetic families of ≤ 8). ``product_merge=1`` (the products of one component
-of the more precise filter down to 12, no reduction of all pairs after): ×0.982 (5
-interleaved rounds), `benchmarks/electron_fits.py` GSF rows within 1σ of the paired-bootstrap
-errors on seed 7 (1,500 tracks) but the last-UT-hit q/p pull core 0.970 → 0.973 ± 0.002 on
-seed 11 (3,000 tracks; every δp/p core within 1σ): not made the default.
+convolution too (×1.2–1.5 slower there on synthetic families of ≤ 8). ``product_merge=1``
+(the products of one component of the more precise filter down to 12, no reduction of all
+pairs after): ×0.982 (5 interleaved rounds), `benchmarks/electron_fits.py` GSF rows within
+1σ of the paired-bootstrap errors on seed 7 (1,500 tracks) but the last-UT-hit q/p pull core
+0.970 → 0.973 ± 0.002 on seed 11 (3,000 tracks; every δp/p core within 1σ): not made the
+default.
 
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
