@@ -81,6 +81,51 @@ track, medians 3.31 → 2.67); telescope electrons (`benchmarks/vs_acts.py`, 2,0
 the sibling reduction alone, χ²/ndf medians long 0.903, upstream 1.021 as before, 635
 outliers removed on the 7,203 long tracks instead of 629.
 
+Issue 18.2, fourth round, outputs bitwise identical (node states, covariances, χ², node χ²,
+status, component counts, passes and kept q/p mixtures of the 946 lhcb-like electron tracks
+below, output "core"; of 40 events' tracks with outputs "mode" and "mean"). Profile before
+(perf, JIT symbol map, the fits only): `_reduce` 25 %, `_merge_siblings` 16 %, `_combine` 12
+%, the RK4 of the non-lead components 10 %, the lead's Jacobian 5 %, material 5 %, exp 5 %,
+`_normalise_and_cut` 3 %, log 2 %. (1) The mode search (`_mode_component`, n² exponentials
+per smoothed node) passes over a component whose density cannot reach the best one (its
+terms so far plus the heights w_j/√v_j of the rest): 17 % of the exponentials remain on the
+kept mixtures, 1.84 → 1.13 µs per call; (2) the smoothing takes log a_i once per forward
+component instead of once per pair, the "core" output each component's density term once
+instead of three times, the Bethe–Heitler evaluation ln t_min and ln t_max once per plane
+(`bethe_heitler_components_logs`). Together ×0.98 (`benchmarks/gsf_components.py` sample,
+946 tracks, 12 components; main and this tree alternating in two processes, CPU time, best
+of 2 per round, 6 rounds: medians 2.66 → 2.63 ms per track, minima 2.61 → 2.56; 5 of 6
+rounds faster). (3) `_first_min`, the search of every row of `_reduce` and of the families
+of `_merge_siblings`, without branches at all: its four lanes were combined by `or`/`and`,
+whose short circuits the compiler made branches on which lane holds the minimum (data, so
+mispredicted), and its `while` loop's tail wrapped negative indices; ×0.75–0.88 per 42 → 12
+reduction, ×0.78 per 24 → 12 (with (1)–(2) ×0.91 against a main that had moved by a seeding
+commit meanwhile). (4) The weight cut (`_normalise_and_cut`) decides with bitwise operators
+(×0.73 on 92 components, a third below the cut), and the smoothing's family merges take each
+family's closest pair row by row without branches (`_closest_siblings_by_rows`; kept branchy
+after a convolution, where it was slower). (1)–(4) together against e1b2a3d (the same
+protocol, 6 rounds): ×0.873, medians 2.74 → 2.39 ms per track, minima 2.69 → 2.35, every
+round ×0.855–0.885; outputs bitwise e1b2a3d's also with 4 and 16 components (40 events) and
+for the telescope electrons (`benchmarks/vs_acts.py`-like sample, 60 events). The acceptance
+target of issue 18.2 (≤ 1 ms per track) is not reached. Profile after (3) (perf, the fits
+only): `_reduce` 20 %, `_merge_siblings` 17 %, `_combine` 16 %, the RK4 of the non-lead
+components 11 %, material 6 %, the lead's Jacobian 6 %, exp 4 %, `_transport` 3 %, the
+weight cut 3 %. Tried and not kept (bitwise identical merges, synthetic lhcb-like mixtures):
+`_merge_siblings` with a record per component of its closest later sibling, updated per
+merge instead of recomputing the family's K(K − 1)/2 distances (5.05 → 5.22 µs per 92 → 42
+reduction: per merge the moment matching, 25 ns, and the branches cost more than the ≤ 28
+distances); `_reduce` with a renaming loop without the list of components to search again
+(counted instead, then found by a scan): 9.06 → 8.90 µs per 42 → 12, 3.60 → 3.70 µs per 24 →
+12 (the reduction has no hot spot left: a flat profile over ~7 passes of the remaining
+components per merge, ~220 ns per merge); `_pair_product` with the substitution's columns
+innermost (74 ns per product either way); `_closest_siblings` without branches after a
+convolution too (×1.2–1.5 slower there on synthetic families of ≤ 8). ``product_merge=1``
+(the products of one component of the more precise filter down to 12, no reduction of all
+pairs after): ×0.982 (5 interleaved rounds), `benchmarks/electron_fits.py` GSF rows within
+1σ of the paired-bootstrap errors on seed 7 (1,500 tracks) but the last-UT-hit q/p pull core
+0.970 → 0.973 ± 0.002 on seed 11 (3,000 tracks; every δp/p core within 1σ): not made the
+default.
+
 Measurement update: each component gets its own Kalman update (sequential scalar
 updates, as the Kalman core) and its weight is multiplied by its predictive likelihood
 N(r_c; 0, S_c), then the weights are renormalised and cut.
@@ -338,7 +383,7 @@ from pkf.fit.tracks import FitResult, collect_track_states, fit_locations, run_f
 from pkf.jit import NO_REFCOUNT
 from pkf.params.bethe_heitler import (
     BetheHeitlerMixture,
-    bethe_heitler_components,
+    bethe_heitler_components_logs,
     load_bethe_heitler_mixture,
 )
 from pkf.physics.transport import rk4_propagate_map_many, rk4_propagate_scalar, rk4_transport_jacobian
@@ -490,12 +535,12 @@ def _normalise_and_cut(w, mu, cov, n, cut, labels=None):
     if not total > 0.0:
         return 0
     kept = 0.0
-    for c in range(n):
-        if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
-            kept += w[c]
+    for c in range(n):  # bitwise operators: the short circuits were branches on the data (the cut)
+        keep = ((w[c] > 0.0) & (w[c] / total >= cut)) | (c == best)
+        kept += w[c] if keep else 0.0
     out = 0
     for c in range(n):
-        if (w[c] > 0.0 and w[c] / total >= cut) or c == best:
+        if ((w[c] > 0.0) & (w[c] / total >= cut)) | (c == best):
             if out != c:
                 _copy_component(w, mu, cov, c, w, mu, cov, out)
                 if labels is not None:
@@ -549,8 +594,10 @@ def _kl_row(i, n, q, v, iv, dist):
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _precedes(d, k, best_d, best):
     """(d, k) if it precedes (best_d, best) — a smaller distance, or an equal one at a
-    smaller index — else (best_d, best); NaN never precedes."""
-    c = d < best_d or (d == best_d and k < best)
+    smaller index — else (best_d, best); NaN never precedes. Bitwise operators, not `or`
+    and `and`: their short circuits were branches, which the predictor missed (the lane
+    that holds the minimum is data)."""
+    c = (d < best_d) | ((d == best_d) & (k < best))
     return (d if c else best_d), (k if c else best)
 
 
@@ -560,11 +607,16 @@ def _first_min(n, dist):
     NaN never wins): what `_closer` offered the values in index order gives. One pass
     without branches: four interleaved running minima, each with the first index where
     it was reached (strict <, so the first of equal values stays), then the four combined
-    by value and, for equal values, by index (`_precedes`). The branchy single pass was
-    ×1.2 slower in `_reduce` (64–100 components); the two passes before (the minimum, then
-    a scan for its first index, whose exit the branch predictor misses) were slower too
-    (with the orphan list of `_reduce`, ×0.91 per reduction together). Eight lanes instead
-    of four: no faster (17.7 against 17.3 µs per reduction)."""
+    by value and, for equal values, by index (`_precedes`, without branches). The branchy
+    single pass was ×1.2 slower in `_reduce` (64–100 components); the two passes before (the
+    minimum, then a scan for its first index, whose exit the branch predictor misses) were
+    slower too (with the orphan list of `_reduce`, ×0.91 per reduction together). Eight
+    lanes instead of four: no faster (17.7 against 17.3 µs per reduction). The lanes run
+    over blocks of four (`range`, so the compiler knows the indices are not negative: the
+    `while` loop before had a wrap-around of negative indices in its tail) and the last
+    n mod 4 values join lane 0; with `_precedes` without branches, ×0.75–0.88 per 42 → 12
+    reduction (9.3 → 7.0 µs, minima of 9 alternating rounds; medians of the ratio 0.88) and
+    ×0.78 per 24 → 12 (issue 18.2, fourth round)."""
     m0 = np.inf
     m1 = np.inf
     m2 = np.inf
@@ -573,8 +625,8 @@ def _first_min(n, dist):
     i1 = -1
     i2 = -1
     i3 = -1
-    k = 0
-    while k + 4 <= n:
+    for block in range(n // 4):
+        k = 4 * block
         x0 = dist[k]
         x1 = dist[k + 1]
         x2 = dist[k + 2]
@@ -591,13 +643,11 @@ def _first_min(n, dist):
         i1 = k + 1 if c1 else i1
         i2 = k + 2 if c2 else i2
         i3 = k + 3 if c3 else i3
-        k += 4
-    while k < n:
+    for k in range(n - n % 4, n):
         x0 = dist[k]
         c0 = x0 < m0
         m0 = x0 if c0 else m0
         i0 = k if c0 else i0
-        k += 1
     m0, i0 = _precedes(m1, i1, m0, i0)
     m0, i0 = _precedes(m2, i2, m0, i0)
     return _precedes(m3, i3, m0, i0)
@@ -709,8 +759,44 @@ def _closest_siblings(lo, hi, q, v, iv, alive):
     return best, best_a, best_b
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _closest_siblings_by_rows(lo, hi, q, v, iv, alive):
+    """`_closest_siblings` (the same pair, bitwise) without branches: each row's closest later
+    live component, then the rows in order (strict <, so the first pair stays). Faster on
+    the smoothing's families (the products of one component, up to 12: ×0.77 per 72 → 24
+    reduction of synthetic products), slower on the Bethe–Heitler families of ≤ 8 (×1.2–1.5)."""
+    best = np.inf
+    best_a = -1
+    best_b = -1
+    for a in range(lo, hi):
+        qa = q[a]
+        va = v[a]
+        iva = iv[a]
+        row = np.inf
+        row_b = -1
+        for b in range(a + 1, hi):
+            d = qa - q[b]
+            x = (va - v[b]) * (iv[b] - iva) + d * d * (iva + iv[b])
+            c = (x < row) & (alive[b] > 0.0)
+            row = x if c else row
+            row_b = b if c else row_b
+        c = (row < best) & (alive[a] > 0.0)
+        best = row if c else best
+        best_a = a if c else best_a
+        best_b = row_b if c else best_b
+    return best, best_a, best_b
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _closest_family_pair(lo, hi, q, v, iv, alive, by_rows):
+    """`_closest_siblings_by_rows` if by_rows, else `_closest_siblings`."""
+    if by_rows:
+        return _closest_siblings_by_rows(lo, hi, q, v, iv, alive)
+    return _closest_siblings(lo, hi, q, v, iv, alive)
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
+def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments, by_rows=False):
     """Merge the closest pair of siblings (components with the same `parent`, consecutive:
     the Bethe–Heitler children of one component, `_material`) in the KL distance of
     `_reduce` until at most `target` components remain or no sibling pair is left; returns
@@ -718,7 +804,8 @@ def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
     their q/p row and column (module docstring, "Reduction after a convolution"); each family
     keeps its own closest pair (distance, slots), so a merge recomputes only that family's
     ≤ K(K − 1)/2 distances. The survivors' parents are not compacted along. `nearest` (4, ≥ n + 1) and `moments`
-    (5, ≥ n) are scratch."""
+    (5, ≥ n) are scratch. `by_rows`: the closest pairs by `_closest_siblings_by_rows` (the
+    same pairs)."""
     if n <= target:
         return n
     start, first, second = nearest[0], nearest[1], nearest[3]
@@ -732,7 +819,7 @@ def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
         alive[c] = 1.0
     start[n_families] = n
     for f in range(n_families):
-        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+        best_d[f], first[f], second[f] = _closest_family_pair(start[f], start[f + 1], q, v, iv, alive, by_rows)
     count = n
     while count > target:
         f = _first_min(n_families, best_d)[1]
@@ -743,7 +830,7 @@ def _merge_siblings(w, mu, cov, n, target, parent, nearest, moments):
         _load_qop_moments(mu, cov, i, q, v, iv)
         alive[second[f]] = 0.0
         count -= 1
-        best_d[f], first[f], second[f] = _closest_siblings(start[f], start[f + 1], q, v, iv, alive)
+        best_d[f], first[f], second[f] = _closest_family_pair(start[f], start[f + 1], q, v, iv, alive, by_rows)
     out = 0
     for c in range(n):
         if alive[c] > 0.0:
@@ -823,28 +910,80 @@ def _largest(w, n):
     return best
 
 
+#: `_mode_component`: a component is passed over when its density plus the bound of the
+#: terms not yet taken, times this, is below the best density (the sums' rounding is
+#: below 3nε ≈ 1e−14 relative for n ≤ 100 components).
+_MODE_BOUND_MARGIN = 1.0 + 1e-9
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _mode_term(w, mu, cov, root, c, j):
+    """Component j's term of the q/p marginal density at component c's q/p mean (×√2π)."""
+    v = cov[j, 4, 4]
+    d = mu[c, 4] - mu[j, 4]
+    return w[j] * math.exp(-0.5 * d * d / v) / root[j]
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _mode_component(w, mu, cov, n, root):
-    """The component at whose q/p mean the mixture's q/p marginal density is highest
-    (root: scratch, ≥ n, for each component's q/p width √v, taken once)."""
+def _mode_component(w, mu, cov, n, scratch, order):
+    """The component at whose q/p mean the mixture's q/p marginal density is highest (the
+    first among equal densities; the first component if no density is a number).
+
+    Each density is the sum over j, in component order, of w_j·exp(−(μ_c − μ_j)²/2v_j)/√v_j
+    (`_mode_term`). Term j is at most its height h_j = w_j/√v_j (exp ≤ 1), so a component
+    whose terms taken so far plus the heights of the others stay below the best density
+    cannot be the mode and is passed over (bound with `_MODE_BOUND_MARGIN`, so the choice
+    is that of computing every density, bitwise): the tallest component is taken first,
+    every other takes its terms tallest first. On lhcb-like electrons 17 % of the n²
+    exponentials remain (issue 18.2, fourth round). A density computed to the end is
+    summed again in component order, as computing it directly does. `scratch` (4, ≥ n)
+    and `order` (≥ n, int) are scratch."""
+    root, height, suffix, term = scratch[0], scratch[1], scratch[2], scratch[3]
+    bounded = True  # no negative weight (the margin is relative)
     for j in range(n):
         root[j] = math.sqrt(cov[j, 4, 4])
+        h = w[j] / root[j]
+        height[j] = h if h > 0.0 else 0.0  # NaN: every density is NaN, any choice passed over is right
+        bounded = bounded and not w[j] < 0.0
+        order[j] = j
+    for a in range(1, n):  # tallest first (insertion sort; the order only decides what is passed over)
+        k = order[a]
+        b = a - 1
+        while b >= 0 and height[order[b]] < height[k]:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = k
+    total = 0.0
+    for r in range(n - 1, -1, -1):
+        total += height[order[r]]
+        suffix[r] = total  # Σ heights of order[r:]
+    tallest = order[0]
     best = 0
     best_density = -1.0
-    for c in range(n):
+    for step in range(n):
+        c = tallest if step == 0 else step - 1 + (1 if step - 1 >= tallest else 0)
+        partial = 0.0
+        passed = False
+        for r in range(n):
+            if bounded and (partial + suffix[r]) * _MODE_BOUND_MARGIN < best_density:
+                passed = True
+                break
+            j = order[r]
+            term[j] = _mode_term(w, mu, cov, root, c, j)
+            partial += term[j]
+        if passed:
+            continue
         density = 0.0
         for j in range(n):
-            v = cov[j, 4, 4]
-            d = mu[c, 4] - mu[j, 4]
-            density += w[j] * math.exp(-0.5 * d * d / v) / root[j]
-        if density > best_density:
+            density += term[j]
+        if density > best_density or (density == best_density and c < best):
             best_density = density
             best = c
     return best
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _core(w, mu, cov, n, q, var, out_mean, out_cov):
+def _core(w, mu, cov, n, q, var, out_mean, out_cov, density):
     """Output "core": the Gaussian core of the mixture's q/p marginal f and the other
     parameters given q/p at its centre (see the module docstring).
 
@@ -856,7 +995,8 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     m_c = μ_c + P_c[:, 4]/v_c·(q − μ_c) and covariances P_c − P_c[:, 4]P_c[4, :]/v_c,
     slopes β = Σ r_c P_c[:, 4]/v_c; output x = Σ r_c m_c, C_xx = Σ r_c (conditional
     covariance + (m_c − x)(m_c − x)ᵀ) + ββᵀσ², C_xq = βσ², C_qq = σ². One component:
-    exactly that component."""
+    exactly that component. `density` (≥ n) is scratch: each component's w_c·N(q; μ_c, v_c)·√(2π),
+    taken once for the sum and both passes over the components."""
     if n == 1:
         copy5(mu[0], out_mean)
         copy55(cov[0], out_cov)
@@ -891,7 +1031,8 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     total = 0.0
     for c in range(n):
         d = q - mu[c, 4]
-        total += w[c] * math.exp(-0.5 * d * d / cov[c, 4, 4]) / math.sqrt(cov[c, 4, 4])
+        density[c] = w[c] * math.exp(-0.5 * d * d / cov[c, 4, 4]) / math.sqrt(cov[c, 4, 4])
+        total += density[c]
     for i in range(5):
         out_mean[i] = 0.0
         for j in range(5):
@@ -900,14 +1041,14 @@ def _core(w, mu, cov, n, q, var, out_mean, out_cov):
     for c in range(n):
         vc = cov[c, 4, 4]
         d = q - mu[c, 4]
-        r = w[c] * math.exp(-0.5 * d * d / vc) / math.sqrt(vc) / total
+        r = density[c] / total
         for i in range(4):
             out_mean[i] += r * (mu[c, i] + cov[c, i, 4] / vc * d)
             beta[i] += r * cov[c, i, 4] / vc
     for c in range(n):
         vc = cov[c, 4, 4]
         d = q - mu[c, 4]
-        r = w[c] * math.exp(-0.5 * d * d / vc) / math.sqrt(vc) / total
+        r = density[c] / total
         for i in range(4):
             di = mu[c, i] + cov[c, i, 4] / vc * d - out_mean[i]
             for j in range(4):
@@ -1049,6 +1190,8 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
     plane (q/p → ±inf) is dropped. Returns the number of output components (0 if every one
     stopped)."""
     ref = ctx.ref
+    log_t_min = math.log(ctx.bh_t_min)
+    log_t_max = math.log(ctx.bh_t_max)
     out = 0
     for c in range(n):
         set_identity(jm)
@@ -1069,7 +1212,8 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                 pc[i, j] += noise[i, j]
         nb_comp = 0
         if ctx.bethe_heitler and t > 0.0 and mu[c, 4] != 0.0 and math.isfinite(mu[c, 4]):
-            nb_comp = bethe_heitler_components(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, t, bw, bm, bv)
+            nb_comp = bethe_heitler_components_logs(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, log_t_min,
+                                                    log_t_max, t, bw, bm, bv)
         if nb_comp == 0:
             _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
             parent[out] = c
@@ -1376,8 +1520,11 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     _pair_sums(fcov, nf, bcov, nb_, s, plu)
     _pair_factors(nf * nb_, s, plu, scale, ok)
     _pair_solves(fmu, nf, bmu, nb_, s, plu, scale, y, q, det, bmt)
+    log_fw = moments[3]  # log a_i
     for j in range(nb_):
         log_bw[j] = math.log(bw[j]) if bw[j] > 0.0 else 0.0
+    for i in range(nf):
+        log_fw[i] = math.log(fw[i]) if fw[i] > 0.0 else 0.0
     by_backward = ctx.product_target > 0 and _qop_variance(bw, bcov, nb_) < _qop_variance(fw, fcov, nf)
     n = 0
     for a in range(nb_ if by_backward else nf):  # the candidates of one family consecutive
@@ -1387,7 +1534,7 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
             p = i * nb_ + j
             if not (fw[i] > 0.0 and bw[j] > 0.0 and ok[p] > 0.0):
                 continue
-            pw[n] = math.log(fw[i]) + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
+            pw[n] = log_fw[i] + log_bw[j] + _pair_log_overlap(p, s, plu, q, det)
             if math.isnan(pw[n]):
                 continue
             pair[n] = p
@@ -1450,7 +1597,8 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov, family=N
     the closest pairs within a family are merged first (`_merge_siblings`)."""
     n = _normalise_and_cut(w, mu, cov, n, ctx.weight_cut, family)
     if family is not None and ctx.product_target > 0:
-        n = _merge_siblings(w, mu, cov, n, max(ctx.product_target, ctx.max_components), family, nearest, moments)
+        n = _merge_siblings(w, mu, cov, n, max(ctx.product_target, ctx.max_components), family, nearest, moments,
+                            True)
     n = _reduce(w, mu, cov, n, ctx.max_components, nearest, moments)
     if ctx.output == OUTPUT_MEAN:
         _collapse(w, mu, cov, n, out_mean, out_cov)
@@ -1458,9 +1606,10 @@ def _summarise(ctx, w, mu, cov, n, nearest, moments, out_mean, out_cov, family=N
         copy5(mu[_largest(w, n)], out_mean)
         _second_moment(w, mu, cov, n, out_mean, out_cov)
     else:
-        _peak(w, mu, cov, n, _mode_component(w, mu, cov, n, moments[0]), ctx.peak_window, out_mean, out_cov)
+        mode = _mode_component(w, mu, cov, n, moments[:4], nearest[0])
+        _peak(w, mu, cov, n, mode, ctx.peak_window, out_mean, out_cov)
         if ctx.output == OUTPUT_CORE:
-            _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov)
+            _core(w, mu, cov, n, out_mean[4], out_cov[4, 4], out_mean, out_cov, moments[0])
     return n
 
 

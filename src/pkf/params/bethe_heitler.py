@@ -152,6 +152,15 @@ def bethe_heitler_components(coefficients, t_min, t_max, t, out_weight, out_mean
     """Mixture of z = E_f/E_i after t radiation lengths: writes weights, means and
     variances into the output arrays (length ≥ K) and returns the number of components
     (0: no loss, t < 1e−4; 1: the single-Gaussian shortcut, t < t_min)."""
+    return bethe_heitler_components_logs(coefficients, t_min, t_max, math.log(t_min), math.log(t_max), t,
+                                         out_weight, out_mean, out_var)
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def bethe_heitler_components_logs(coefficients, t_min, t_max, log_t_min, log_t_max, t, out_weight, out_mean,
+                                  out_var):
+    """`bethe_heitler_components` with ln t_min and ln t_max given (a caller evaluating many
+    t, as the GSF at a plane for every component, takes them once; bitwise the same)."""
     if not t >= NO_LOSS_BELOW:
         return 0
     if t < t_min:
@@ -161,7 +170,7 @@ def bethe_heitler_components(coefficients, t_min, t_max, t, out_weight, out_mean
         out_var[0] = max(3.0 ** (-c) - 4.0 ** (-c), 0.0)
         return 1
     tc = min(t, t_max)
-    s = 2.0 * (math.log(tc) - math.log(t_min)) / (math.log(t_max) - math.log(t_min)) - 1.0
+    s = 2.0 * (math.log(tc) - log_t_min) / (log_t_max - log_t_min) - 1.0
     k_max = coefficients.shape[1]
     degree = coefficients.shape[2] - 1
     largest = -1e300
