@@ -193,11 +193,12 @@ def state_columns(rows, z, state, cov, out):
                 c += 1
 
 
-@nb.njit(cache=True, **NO_REFCOUNT)
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def pull_columns(rows, state, cov, truth, out):
     """The ``pulls`` columns of tracks ``rows`` against ``truth`` (len(rows), 5): out[0] = p_true =
     1/|q/p true|, out[1 + i] = res_i = state − truth, out[6 + i] = pull_i = res_i / σ_i with
-    σ_i = √max(C_ii, 0) (NaN C_ii stays NaN, as numpy's maximum)."""
+    σ_i = √max(C_ii, 0) (NaN C_ii stays NaN, as numpy's maximum). IEEE division as numpy's
+    (``error_model="numpy"``: σ = 0 gives ±inf or NaN, not ZeroDivisionError)."""
     for k in range(rows.size):
         r = rows[k]
         out[0, k] = 1.0 / np.abs(truth[k, 4])
