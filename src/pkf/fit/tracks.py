@@ -34,6 +34,7 @@ from pkf.fit.seed import (
     velo_momentum_seeds,
 )
 from pkf.geometry.detector import KIND_PIXEL, Geometry
+from pkf.io.row_order import group_sort_order
 
 
 @dataclass
@@ -77,12 +78,10 @@ class TrackBatch:
         (`pattern_state_at`); without one the pattern arrays are NaN."""
         track_index, hit_row, n_tracks = candidates.track_of_hit, candidates.hit_row, candidates.n_tracks
         layer_of = layer[hit_row].astype(np.int64)
-        order = np.lexsort((geometry.layer_z[layer_of], track_index))
-        track_index = track_index[order]
+        # = np.lexsort((z, track_index)) and the CSR offsets
+        order, offsets = group_sort_order(track_index, geometry.layer_z[layer_of], n_tracks)
         hit_row = hit_row[order]
         layer_of = layer_of[order]
-        counts = np.bincount(track_index, minlength=n_tracks)
-        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         pixel = geometry.layer_kind[layer_of] == KIND_PIXEL
         n = hit_row.size
         hx = np.zeros((n, 2))

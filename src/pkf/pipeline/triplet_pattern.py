@@ -29,6 +29,7 @@ import numpy as np
 
 from pkf.fit.candidates import Candidates
 from pkf.geometry.detector import Geometry
+from pkf.io.row_order import group_sort_order
 from pkf.seeding.forward import extend_velo_tracks
 from pkf.seeding.velo_search import find_velo_tracks
 
@@ -80,7 +81,7 @@ def _group_candidates(geometry, forward_extrapolator, event_id, layer, u, v, z, 
     keep = (forward.found | forward.upstream)[fwd_track]
     track = np.concatenate([velo_track, fwd_track[keep]])
     rows = np.concatenate([velo.hit_rows, forward.hit_rows[keep]])
-    order = np.lexsort((rows, track))
+    order, _ = group_sort_order(track, rows, n_tracks)  # = np.lexsort((rows, track))
     track, rows = track[order], rows[order]
     track_event = velo.event_id[track]
     # track ids from 0 within each event (VELO tracks come sorted by event)

@@ -8,12 +8,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy.special import chdtri
 
 from pkf.errors import InputError
 from pkf.geometry.detector import SUBDETECTORS, Geometry
+from pkf.io.row_order import group_sort_order
 from pkf.params.transport import STEP_SCIFI, STEP_UT, STEP_UT_TO_SCIFI, STEP_VELO_TO_UT
 from pkf.params.ut_to_scifi import META_NX, META_NY, META_P_MIN, META_SIZE
 from pkf.seeding.forward.hough import hough_grid
@@ -111,31 +111,6 @@ def _chi2_table(pvalue: float, n: int, offset: int) -> np.ndarray:
     return chdtri(ndf, pvalue)  # = scipy.stats.chi2.isf(pvalue, ndf), without importing scipy.stats
 
 
-@nb.njit(cache=True)
-def _bucket_order(key, u, n_keys):
-    """The order of np.lexsort((u, key)) for integer keys in [0, n_keys): a counting sort by
-    key, then a stable sort by u within each key (an (event, layer) holds tens to hundreds
-    of hits; a lexsort of all hits cost half of the extension's set-up). Returns (order,
-    bounds): the rows of key b are order[bounds[b]:bounds[b + 1]]."""
-    bounds = np.zeros(n_keys + 1, dtype=np.int64)
-    for k in key:
-        bounds[k + 1] += 1
-    for b in range(n_keys):
-        bounds[b + 1] += bounds[b]
-    fill = bounds[:-1].copy()
-    order = np.empty(key.size, dtype=np.int64)
-    for i in range(key.size):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
-    for b in range(n_keys):
-        lo = bounds[b]
-        hi = bounds[b + 1]
-        if hi - lo > 1:
-            seg = order[lo:hi].copy()
-            order[lo:hi] = seg[np.argsort(u[seg], kind="mergesort")]
-    return order, bounds
-
-
 @dataclass
 class Prepared:
     """What `extend_velo_tracks` hands to the kernel: the layout, the forward hits sorted
@@ -182,7 +157,9 @@ def _sorted_hits(events, n_fwd, fwd_of_layer, hit_event, hit_layer, hit_u, hit_s
     use = use[known]
     ev_index = ev_index[known]
     n_ev = events.size
-    order, bounds = _bucket_order(ev_index * n_fwd + hf[use], hit_u[use], n_ev * n_fwd)
+    # counting sort by (event, layer), then by u within each: a lexsort of all hits cost half of the
+    # extension's set-up
+    order, bounds = group_sort_order(ev_index * n_fwd + hf[use], hit_u[use], n_ev * n_fwd)
     lay_off = bounds[np.arange(n_ev)[:, None] * n_fwd + np.arange(n_fwd + 1)[None, :]].astype(np.int64)
     return use[order], lay_off
 
