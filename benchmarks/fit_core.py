@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fit_compare  # noqa: E402
 
-from pkf.fit.driver import max_nodes, track_loop  # noqa: E402
+from pkf.fit.driver import FitOutputs, OutlierRule, TrackNodes, max_nodes, track_loop  # noqa: E402
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, kalman_fitter  # noqa: E402
 from pkf.fit.tracks import FitResult, TrackBatch  # noqa: E402
 from pkf.geometry import load_geometry  # noqa: E402
@@ -40,28 +40,7 @@ def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoot
     fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1, smoother)
     r = FitResult.empty(batch)
     loop = track_loop(fitter)
-    args = (
-        fitter,
-        batch.offsets,
-        batch.z,
-        batch.n_meas,
-        batch.hx,
-        batch.hy,
-        batch.m,
-        batch.sigma,
-        seeds,
-        covs,
-        np.array([9.0, 11.83]),
-        0,
-        r.node_state,
-        r.node_cov,
-        r.node_chi2,
-        r.node_active,
-        r.status,
-        r.chi2,
-        r.ndf,
-        r.n_outliers,
-    )
+    args = (fitter, TrackNodes.of(batch, seeds, covs), OutlierRule(np.array([9.0, 11.83]), 0), FitOutputs.of(r))
     loop(*args)
     times = []
     for _ in range(repeat):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from fit_helpers import TruthSample
 
-from pkf.fit.driver import fit_tracks_no_refcount, max_nodes
+from pkf.fit.driver import FitOutputs, OutlierRule, TrackNodes, fit_tracks_no_refcount, max_nodes
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, kalman_fitter
 from pkf.fit.kalman_lanes import GROUP, fit_tracks_in_lanes, lane_order
 from pkf.fit.tracks import FitResult, TrackBatch
@@ -38,25 +38,9 @@ def _fit(loop, fitter, batch, seeds, seed_covs, max_outliers):
     r = FitResult.empty(batch)
     loop(
         fitter,
-        batch.offsets,
-        batch.z,
-        batch.n_meas,
-        batch.hx,
-        batch.hy,
-        batch.m,
-        batch.sigma,
-        seeds,
-        seed_covs,
-        np.array([9.0, 11.83]),
-        max_outliers,
-        r.node_state,
-        r.node_cov,
-        r.node_chi2,
-        r.node_active,
-        r.status,
-        r.chi2,
-        r.ndf,
-        r.n_outliers,
+        TrackNodes.of(batch, seeds, seed_covs),
+        OutlierRule(np.array([9.0, 11.83]), max_outliers),
+        FitOutputs.of(r),
     )
     r.set_failed_nodes_nan(batch)  # as `pkf.fit.tracks.run_fitter`: a failed track's nodes are not written
     return r
@@ -66,7 +50,7 @@ def _fit(loop, fitter, batch, seeds, seed_covs, max_outliers):
 @pytest.mark.parametrize("iterations,max_outliers", ((1, 0), (2, 3)))
 def test_lanes_give_the_scalar_outputs_bitwise(sample, smoother, iterations, max_outliers):
     s, batch, seeds = sample
-    order, n_grouped = lane_order(batch.offsets, batch.n_meas, seeds, s.seed_covs)
+    order, n_grouped = lane_order(TrackNodes.of(batch, seeds, s.seed_covs))
     lengths = np.diff(batch.offsets)
     assert n_grouped > 4 * GROUP and np.unique(lengths[order[:n_grouped]]).size > 3  # unequal lengths in lanes
     fitter = kalman_fitter(s.extrapolator, max_nodes(batch.offsets), iterations, smoother)

@@ -68,13 +68,13 @@ import numpy as np
 
 from pkf.fit.driver import (
     count_ndf,
-    end_track,
-    find_outlier,
+    finish_track,
     fit_one_track,
     fit_tracks_no_refcount,
     max_nodes,
     refit_track,
     register_track_loop,
+    track_outlier,
 )
 from pkf.fit.kalman import SMOOTHER_DEFERRED, SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter, _fit_once
 from pkf.fit.status import STATUS_OK
@@ -124,45 +124,28 @@ def lane_scratch(n_nodes: int) -> LaneScratch:
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _forward_scalar(
-    f,
-    sc,
-    l,
-    use_reference,
-    offsets,
-    node_z,
-    node_n_meas,
-    node_hx,
-    node_hy,
-    node_m,
-    node_sigma,
-    out_active,
-    seeds,
-    seed_covs,
-    out_state,
-    out_cov,
-):
+def _forward_scalar(f, sc, l, use_reference, nodes, out):
     """The forward filter of lane l's track by `_fit_once` itself, writing its per-node
     results into sc[l] (SMOOTHER_DEFERRED; with SMOOTHER_NONE also the filtered states
-    into out_state/out_cov). False if it failed."""
+    into out.state/out.cov). False if it failed."""
     t = sc.track[l]
-    lo = offsets[t]
-    hi = offsets[t + 1]
+    lo = nodes.offsets[t]
+    hi = nodes.offsets[t + 1]
     n = hi - lo
     if use_reference:
         for k in range(n):
-            copy5(out_state[lo + k], f.ref[k])
+            copy5(out.state[lo + k], f.ref[k])
     status, chi2 = _fit_once(
         f.ext,
-        node_z[lo:hi],
-        node_n_meas[lo:hi],
-        node_hx[lo:hi],
-        node_hy[lo:hi],
-        node_m[lo:hi],
-        node_sigma[lo:hi],
-        out_active[lo:hi],
-        seeds[t],
-        seed_covs[t],
+        nodes.z[lo:hi],
+        nodes.n_meas[lo:hi],
+        nodes.hx[lo:hi],
+        nodes.hy[lo:hi],
+        nodes.m[lo:hi],
+        nodes.sigma[lo:hi],
+        out.active[lo:hi],
+        nodes.seeds[t],
+        nodes.seed_covs[t],
         use_reference,
         f.ref,
         sc.pred[l],
@@ -172,8 +155,8 @@ def _forward_scalar(
         sc.jac[l],
         sc.noise[l],
         SMOOTHER_NONE if f.smoother == SMOOTHER_NONE else SMOOTHER_DEFERRED,
-        out_state[lo:hi],
-        out_cov[lo:hi],
+        out.state[lo:hi],
+        out.cov[lo:hi],
         f.mats,
         f.vec5,
         f.perm,
@@ -202,16 +185,16 @@ def _gather_node(v, a, v_lanes, a_lanes, l):
 
 
 @nb.njit(cache=True, inline="always")
-def _gather_measurement(sc, k, j, l, node_n_meas, node_hx, node_hy, node_m, node_sigma, hx, hy, m, var, do, squared):
-    """Measurement j of lane l's node k into the lane vectors (do[l] = 0: none); var[l]
-    its σ² if `squared` (as `_fit_once` computes it), else σ."""
+def _gather_measurement(sc, k, j, l, nodes, hx, hy, m, var, do, squared):
+    """Measurement j of lane l's node k (of `nodes`, a `TrackNodes`) into the lane vectors
+    (do[l] = 0: none); var[l] its σ² if `squared` (as `_fit_once` computes it), else σ."""
     node = sc.first[l] + k
-    if k < sc.n[l] and sc.alive[l] != 0.0 and j < node_n_meas[node]:
+    if k < sc.n[l] and sc.alive[l] != 0.0 and j < nodes.n_meas[node]:
         do[l] = 1.0
-        hx[l] = node_hx[node, j]
-        hy[l] = node_hy[node, j]
-        m[l] = node_m[node, j]
-        var[l] = node_sigma[node, j] ** 2 if squared else node_sigma[node, j]
+        hx[l] = nodes.hx[node, j]
+        hy[l] = nodes.hy[node, j]
+        m[l] = nodes.m[node, j]
+        var[l] = nodes.sigma[node, j] ** 2 if squared else nodes.sigma[node, j]
     else:
         do[l] = 0.0
         hx[l] = 0.0
@@ -265,11 +248,11 @@ def _combine_lane(p, info, x_p, info_vec, a, c, x, bad_pivot, bad_diag, l):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma, out_state, out_cov):
+def _backward_lanes(sc, n_max, nodes, out):
     """The backward information filter and the weighted-mean combination of
     `_backward_information_filter` for the group's lanes, node by node downstream →
     upstream, each lane's (Y, y) starting empty at its own last node; the optimal states
-    into out_state/out_cov. A failing lane gets alive = 0."""
+    into out.state/out.cov. A failing lane gets alive = 0."""
     info = stack_array((5, 5, GROUP))
     info_vec = stack_array((5, GROUP))
     a = stack_array((5, 5, GROUP))
@@ -301,9 +284,7 @@ def _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma
             _gather_node(sc.pred[l, k], sc.pred_cov[l, k], pred_k, pcov_k, l)
         for jm in range(2):
             for l in range(GROUP):
-                _gather_measurement(
-                    sc, k, jm, l, node_n_meas, node_hx, node_hy, node_m, node_sigma, hx, hy, m, sigma, do, False
-                )
+                _gather_measurement(sc, k, jm, l, nodes, hx, hy, m, sigma, do, False)
             for l in range(GROUP):
                 _add_information_lane(info, info_vec, hx, hy, m, sigma, pred_k, do, l)
         for l in range(GROUP):  # the weighted mean at node k, SIMD over the lanes
@@ -315,9 +296,9 @@ def _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma
                     continue
                 node = sc.first[l] + k
                 for i in range(5):
-                    out_state[node, i] = x[i, l]
+                    out.state[node, i] = x[i, l]
                     for j in range(5):
-                        out_cov[node, i, j] = c[i, j, l]
+                        out.cov[node, i, j] = c[i, j, l]
         if k == 0:
             break
         for l in range(GROUP):
@@ -355,171 +336,54 @@ def _start_group(sc, order, g0, n_grouped, offsets, out_active):
     return n_max
 
 
+@nb.njit(cache=True, inline="always")
+def _finish_lane(fitter, sc, l, nodes, rule, out):
+    """After the lane fit of a group, lane l's track: its node χ² and outlier candidate
+    (`track_outlier`); a candidate to remove → the shared loop's refits from the state of
+    this first fit (`refit_track`); a failure → the shared loop from the start
+    (`fit_one_track`); else the lane fit's outputs (`finish_track`)."""
+    t = sc.track[l]
+    lo = nodes.offsets[t]
+    hi = nodes.offsets[t + 1]
+    status = STATUS_OK
+    worst = -1
+    if sc.alive[l] != 0.0:
+        status, worst = track_outlier(fitter, lo, hi, nodes, rule, out)
+    if sc.alive[l] != 0.0 and status == STATUS_OK and rule.max_outliers > 0 and worst >= 0:
+        # the scalar loop's state after this first fit, then its refits
+        for k in range(hi - lo):
+            copy5(out.state[lo + k], fitter.ref[k])
+        fitter.have_reference[0] = True
+        out.active[lo + worst] = False
+        refit_track(fitter, t, nodes, rule, out, STATUS_OK, 1)
+    elif sc.alive[l] == 0.0 or status != STATUS_OK:
+        fit_one_track(fitter, t, nodes, rule, out)
+    else:
+        ndf = count_ndf(nodes.n_meas[lo:hi], out.active[lo:hi])
+        finish_track(fitter, t, lo, hi, out, STATUS_OK, sc.chi2[l], ndf, 0)
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def fit_tracks_lanes(
-    fitter,
-    order,
-    n_grouped,
-    sc,
-    offsets,
-    node_z,
-    node_n_meas,
-    node_hx,
-    node_hy,
-    node_m,
-    node_sigma,
-    seeds,
-    seed_covs,
-    outlier_cuts,
-    max_outliers,
-    out_state,
-    out_cov,
-    out_node_chi2,
-    out_active,
-    out_status,
-    out_chi2,
-    out_ndf,
-    out_n_outliers,
-):
+def fit_tracks_lanes(fitter, order, n_grouped, sc, nodes, rule, out):
     """`pkf.fit.driver._fit_tracks_loop` for a `KalmanFitter`, the first fits of the tracks
     order[:n_grouped] (sorted by length) GROUP at a time in lanes (all `n_iterations`
     passes), the others, and those whose lane fit failed or found an outlier to remove,
-    through `fit_one_track`. Same arguments and outputs as `fit_tracks`, plus order,
-    n_grouped and the scratch sc (`lane_scratch`)."""
+    through `fit_one_track`. Same arguments and outputs as `fit_tracks` (`TrackNodes`,
+    `OutlierRule`, `FitOutputs`), plus order, n_grouped and the scratch sc (`lane_scratch`)."""
     for g0 in range(0, n_grouped, GROUP):
-        n_max = _start_group(sc, order, g0, n_grouped, offsets, out_active)
+        n_max = _start_group(sc, order, g0, n_grouped, nodes.offsets, out.active)
         for it in range(max(1, fitter.n_iterations)):
             for l in range(GROUP):
                 if sc.alive[l] != 0.0:
-                    if not _forward_scalar(
-                        fitter,
-                        sc,
-                        l,
-                        it > 0,
-                        offsets,
-                        node_z,
-                        node_n_meas,
-                        node_hx,
-                        node_hy,
-                        node_m,
-                        node_sigma,
-                        out_active,
-                        seeds,
-                        seed_covs,
-                        out_state,
-                        out_cov,
-                    ):
+                    if not _forward_scalar(fitter, sc, l, it > 0, nodes, out):
                         sc.alive[l] = 0.0
             if fitter.smoother == SMOOTHER_WEIGHTED_MEAN:
-                _backward_lanes(sc, n_max, node_n_meas, node_hx, node_hy, node_m, node_sigma, out_state, out_cov)
+                _backward_lanes(sc, n_max, nodes, out)
         for l in range(GROUP):
-            t = sc.track[l]
-            if t < 0:
-                continue
-            lo = offsets[t]
-            hi = offsets[t + 1]
-            status = STATUS_OK
-            worst = -1
-            if sc.alive[l] != 0.0:
-                status, worst = find_outlier(
-                    out_state[lo:hi],
-                    out_cov[lo:hi],
-                    node_n_meas[lo:hi],
-                    node_hx[lo:hi],
-                    node_hy[lo:hi],
-                    node_m[lo:hi],
-                    node_sigma[lo:hi],
-                    out_active[lo:hi],
-                    outlier_cuts,
-                    out_node_chi2[lo:hi],
-                    fitter.measurement_only_fallback,
-                )
-            if sc.alive[l] != 0.0 and status == STATUS_OK and max_outliers > 0 and worst >= 0:
-                # the scalar loop's state after this first fit, then its refits
-                for k in range(hi - lo):
-                    copy5(out_state[lo + k], fitter.ref[k])
-                fitter.have_reference[0] = True
-                out_active[lo + worst] = False
-                refit_track(
-                    fitter,
-                    t,
-                    offsets,
-                    node_z,
-                    node_n_meas,
-                    node_hx,
-                    node_hy,
-                    node_m,
-                    node_sigma,
-                    seeds,
-                    seed_covs,
-                    outlier_cuts,
-                    max_outliers,
-                    out_state,
-                    out_cov,
-                    out_node_chi2,
-                    out_active,
-                    out_status,
-                    out_chi2,
-                    out_ndf,
-                    out_n_outliers,
-                    STATUS_OK,
-                    1,
-                )
-                continue
-            if sc.alive[l] == 0.0 or status != STATUS_OK:
-                fit_one_track(
-                    fitter,
-                    t,
-                    offsets,
-                    node_z,
-                    node_n_meas,
-                    node_hx,
-                    node_hy,
-                    node_m,
-                    node_sigma,
-                    seeds,
-                    seed_covs,
-                    outlier_cuts,
-                    max_outliers,
-                    out_state,
-                    out_cov,
-                    out_node_chi2,
-                    out_active,
-                    out_status,
-                    out_chi2,
-                    out_ndf,
-                    out_n_outliers,
-                )
-                continue
-            end_track(fitter, t, lo, hi, STATUS_OK, out_state[lo:hi], out_cov[lo:hi])
-            out_status[t] = STATUS_OK
-            out_chi2[t] = sc.chi2[l]
-            out_ndf[t] = count_ndf(node_n_meas[lo:hi], out_active[lo:hi])
-            out_n_outliers[t] = 0
+            if sc.track[l] >= 0:
+                _finish_lane(fitter, sc, l, nodes, rule, out)
     for idx in range(n_grouped, order.size):
-        fit_one_track(
-            fitter,
-            order[idx],
-            offsets,
-            node_z,
-            node_n_meas,
-            node_hx,
-            node_hy,
-            node_m,
-            node_sigma,
-            seeds,
-            seed_covs,
-            outlier_cuts,
-            max_outliers,
-            out_state,
-            out_cov,
-            out_node_chi2,
-            out_active,
-            out_status,
-            out_chi2,
-            out_ndf,
-            out_n_outliers,
-        )
+        fit_one_track(fitter, order[idx], nodes, rule, out)
 
 
 #: Tracks sorted by length within windows of this many (not over the whole batch: tracks
@@ -528,10 +392,11 @@ SORT_WINDOW = 16 * GROUP
 
 
 @nb.njit(cache=True)
-def lane_order(offsets, node_n_meas, seeds, seed_covs, window=SORT_WINDOW):
-    """(order, n_grouped): the tracks that take the lanes (ndf > 0 with every node active,
-    finite seed and seed covariance), sorted by number of nodes within windows of
-    `window` tracks (stable), then the others."""
+def lane_order(nodes, window=SORT_WINDOW):
+    """(order, n_grouped): the tracks of `nodes` (`TrackNodes`) that take the lanes (ndf > 0
+    with every node active, finite seed and seed covariance), sorted by number of nodes
+    within windows of `window` tracks (stable), then the others."""
+    offsets, seeds, seed_covs = nodes.offsets, nodes.seeds, nodes.seed_covs
     n_tracks = offsets.size - 1
     order = np.empty(n_tracks, dtype=np.int64)
     lengths = np.empty(n_tracks, dtype=np.int64)
@@ -540,7 +405,7 @@ def lane_order(offsets, node_n_meas, seeds, seed_covs, window=SORT_WINDOW):
     for t in range(n_tracks):
         dims = -5
         for k in range(offsets[t], offsets[t + 1]):
-            dims += node_n_meas[k]
+            dims += nodes.n_meas[k]
         finite = True
         for i in range(5):
             finite = finite and np.isfinite(seeds[t, i])
@@ -563,81 +428,15 @@ def lane_order(offsets, node_n_meas, seeds, seed_covs, window=SORT_WINDOW):
     return order, n_grouped
 
 
-def fit_tracks_in_lanes(
-    fitter,
-    offsets,
-    node_z,
-    node_n_meas,
-    node_hx,
-    node_hy,
-    node_m,
-    node_sigma,
-    seeds,
-    seed_covs,
-    outlier_cuts,
-    max_outliers,
-    out_state,
-    out_cov,
-    out_node_chi2,
-    out_active,
-    out_status,
-    out_chi2,
-    out_ndf,
-    out_n_outliers,
-):
+def fit_tracks_in_lanes(fitter, nodes, rule, out):
     """`fit_tracks`'s signature and outputs for a `KalmanFitter`, run by `fit_tracks_lanes`
     (the order of the tracks and the lane scratch made here) if it combines by weighted
     mean or not at all and keeps no node stages, else by `fit_tracks_no_refcount`."""
     if fitter.smoother not in (SMOOTHER_WEIGHTED_MEAN, SMOOTHER_NONE) or fitter.stages.predicted.shape[0] > 0:
-        fit_tracks_no_refcount(
-            fitter,
-            offsets,
-            node_z,
-            node_n_meas,
-            node_hx,
-            node_hy,
-            node_m,
-            node_sigma,
-            seeds,
-            seed_covs,
-            outlier_cuts,
-            max_outliers,
-            out_state,
-            out_cov,
-            out_node_chi2,
-            out_active,
-            out_status,
-            out_chi2,
-            out_ndf,
-            out_n_outliers,
-        )
+        fit_tracks_no_refcount(fitter, nodes, rule, out)
         return
-    order, n_grouped = lane_order(offsets, node_n_meas, seeds, seed_covs)
-    fit_tracks_lanes(
-        fitter,
-        order,
-        n_grouped,
-        lane_scratch(max_nodes(offsets)),
-        offsets,
-        node_z,
-        node_n_meas,
-        node_hx,
-        node_hy,
-        node_m,
-        node_sigma,
-        seeds,
-        seed_covs,
-        outlier_cuts,
-        max_outliers,
-        out_state,
-        out_cov,
-        out_node_chi2,
-        out_active,
-        out_status,
-        out_chi2,
-        out_ndf,
-        out_n_outliers,
-    )
+    order, n_grouped = lane_order(nodes)
+    fit_tracks_lanes(fitter, order, n_grouped, lane_scratch(max_nodes(nodes.offsets)), nodes, rule, out)
 
 
 def _choose_loop(fitter: KalmanFitter):

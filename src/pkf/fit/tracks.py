@@ -18,7 +18,7 @@ import numpy as np
 
 from pkf.fit.beamline import beamline_states
 from pkf.fit.candidates import Candidates
-from pkf.fit.driver import max_nodes, track_loop
+from pkf.fit.driver import FitOutputs, OutlierRule, TrackNodes, max_nodes, track_loop
 from pkf.fit.hypothesis import ELECTRON_SEED_QOP_FRACTION, ElectronHypothesis, widen_seed_qop
 import pkf.fit.kalman_lanes  # noqa: F401  (registers the Kalman core's track loop in lanes)
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter, node_stages
@@ -69,9 +69,23 @@ class TrackBatch:
     def n_nodes(self) -> np.ndarray:
         return np.diff(self.offsets)
 
+    @property
+    def node_inputs(self) -> tuple[np.ndarray, ...]:
+        """(offsets, z, n_meas, hx, hy, m, sigma): the arrays the seed and the fit read, in the
+        order of their kernels' arguments (`pkf.fit.seed.seed_tracks`, `pkf.fit.driver.TrackNodes`)."""
+        return self.offsets, self.z, self.n_meas, self.hx, self.hy, self.m, self.sigma
+
     @classmethod
-    def from_candidates(cls, geometry: Geometry, candidates: Candidates, layer: np.ndarray, u: np.ndarray,
-                        v: np.ndarray, sigma_u: np.ndarray, sigma_v: np.ndarray) -> TrackBatch:
+    def from_candidates(
+        cls,
+        geometry: Geometry,
+        candidates: Candidates,
+        layer: np.ndarray,
+        u: np.ndarray,
+        v: np.ndarray,
+        sigma_u: np.ndarray,
+        sigma_v: np.ndarray,
+    ) -> TrackBatch:
         """The nodes of `candidates` (a `Candidates`), track by track, sorted by z within a
         track; hit columns (layer, u, v [mm], sigma_u, sigma_v [mm]) are indexed by its hit rows.
         The pattern's state estimate, if any, is moved to each track's first node
@@ -97,8 +111,19 @@ class TrackBatch:
         sigma[pixel, 1] = sigma_v[hit_row][pixel]
         z = geometry.layer_z[layer_of].copy()
         first_z = z[np.minimum(offsets[:-1], max(z.size - 1, 0))] if z.size else np.zeros(n_tracks)
-        return cls(offsets, z, layer_of, hit_row, np.where(pixel, 2, 1).astype(np.int64), hx, hy, m, sigma,
-                   track_type_codes(geometry, offsets, layer_of), pattern_state_at(candidates, first_z))
+        return cls(
+            offsets,
+            z,
+            layer_of,
+            hit_row,
+            np.where(pixel, 2, 1).astype(np.int64),
+            hx,
+            hy,
+            m,
+            sigma,
+            track_type_codes(geometry, offsets, layer_of),
+            pattern_state_at(candidates, first_z),
+        )
 
 
 class PatternEstimate(NamedTuple):
@@ -182,8 +207,9 @@ def node_residuals(batch: TrackBatch, state: np.ndarray, cov: np.ndarray, sign: 
     det = r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0]
     two = batch.n_meas == 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        chi2_2d = (res[:, 0] ** 2 * r[:, 1, 1] - 2.0 * res[:, 0] * res[:, 1] * r[:, 0, 1]
-                   + res[:, 1] ** 2 * r[:, 0, 0]) / det
+        chi2_2d = (
+            res[:, 0] ** 2 * r[:, 1, 1] - 2.0 * res[:, 0] * res[:, 1] * r[:, 0, 1] + res[:, 1] ** 2 * r[:, 0, 0]
+        ) / det
         chi2_1d = res[:, 0] ** 2 / r[:, 0, 0]
     positive = (r[:, 0, 0] > 0.0) & (~two | (det > 0.0))
     chi2 = np.where(positive, np.where(two, chi2_2d, chi2_1d), np.nan)
@@ -236,10 +262,17 @@ class FitResult:
         CPU per 1,000 minimum-bias events at ν = 7.6, 7 % of the parametrized fit.)"""
         n = batch.z.size
         t = batch.n_tracks
-        return cls(node_state=_node_array((n, 5)), node_cov=_node_array((n, 5, 5)), node_chi2=_node_array((n,)),
-                   node_active=np.ones(n, dtype=np.bool_), status=np.zeros(t, dtype=np.int64),
-                   chi2=np.full(t, np.nan), ndf=np.zeros(t, dtype=np.int64), n_outliers=np.zeros(t, dtype=np.int64),
-                   **fields)
+        return cls(
+            node_state=_node_array((n, 5)),
+            node_cov=_node_array((n, 5, 5)),
+            node_chi2=_node_array((n,)),
+            node_active=np.ones(n, dtype=np.bool_),
+            status=np.zeros(t, dtype=np.int64),
+            chi2=np.full(t, np.nan),
+            ndf=np.zeros(t, dtype=np.int64),
+            n_outliers=np.zeros(t, dtype=np.int64),
+            **fields,
+        )
 
     def set_failed_nodes_nan(self, batch: TrackBatch) -> None:
         """NaN states, covariances and χ² on the nodes of the tracks whose status is not ok."""
@@ -269,36 +302,55 @@ def seed_batch(batch: TrackBatch, field, geometry: Geometry | None = None) -> tu
         pattern_state, pattern_qop_var = batch.pattern.state, batch.pattern.qop_var
     else:
         pattern_state, pattern_qop_var = np.full((batch.n_tracks, 5), np.nan), np.full(batch.n_tracks, np.nan)
-    seed_tracks(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-                *field.args, seeds, covs, qop_var, np.ascontiguousarray(track_type, dtype=np.int64),
-                np.ascontiguousarray(pattern_state, dtype=np.float64),
-                np.ascontiguousarray(pattern_qop_var, dtype=np.float64))
+    seed_tracks(
+        *batch.node_inputs,
+        *field.args,
+        seeds,
+        covs,
+        qop_var,
+        np.ascontiguousarray(track_type, dtype=np.int64),
+        np.ascontiguousarray(pattern_state, dtype=np.float64),
+        np.ascontiguousarray(pattern_qop_var, dtype=np.float64),
+    )
     if geometry is not None and np.any(track_type == TRACK_VELO):
         estimates = np.empty((batch.n_tracks, 3))
-        velo_momentum_estimates(batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-                                seeds, np.ascontiguousarray(track_type, dtype=np.int64), material_planes(geometry),
-                                estimates)
+        velo_momentum_estimates(
+            *batch.node_inputs,
+            seeds,
+            np.ascontiguousarray(track_type, dtype=np.int64),
+            material_planes(geometry),
+            estimates,
+        )
         velo_momentum_seeds(seeds, covs, estimates)
     return seeds, covs, qop_var
 
 
-def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.ndarray,
-              seed_covs: np.ndarray, beamline_extrapolator=None, track_states: bool = False) -> FitResult:
+def fit_batch(
+    extrapolator,
+    batch: TrackBatch,
+    options: FitOptions,
+    seeds: np.ndarray,
+    seed_covs: np.ndarray,
+    beamline_extrapolator=None,
+    track_states: bool = False,
+) -> FitResult:
     """Fit every track of `batch` with `extrapolator` from the given seeds, with the Kalman
     options `options.kalman` (None iterations: one pass); with `track_states`, also keep
     every node's predicted, filtered and (with a smoother) smoothed state in
     `result.track_states`."""
     kalman = options.kalman
     if kalman.hypothesis != "pion" and not isinstance(extrapolator, ElectronHypothesis):
-        raise ValueError(f"hypothesis {kalman.hypothesis!r}: build the extrapolator with it "
-                         "(pkf.fit.hypothesis.with_hypothesis)")
+        raise ValueError(
+            f"hypothesis {kalman.hypothesis!r}: build the extrapolator with it (pkf.fit.hypothesis.with_hypothesis)"
+        )
     if kalman.hypothesis == "electron":
         seed_covs = widen_seed_qop(seeds, seed_covs, ELECTRON_SEED_QOP_FRACTION)
     no_smoother = kalman.smoother == "forward-only"
     result = FitResult.empty(batch, node_stage="filtered" if no_smoother else "smoothed")
     stages = node_stages(batch.z.size if track_states else 0)
-    fitter = kalman_fitter(extrapolator, max_nodes(batch.offsets), kalman.iterations or 1,
-                           SMOOTHER_CODES[kalman.smoother], stages)
+    fitter = kalman_fitter(
+        extrapolator, max_nodes(batch.offsets), kalman.iterations or 1, SMOOTHER_CODES[kalman.smoother], stages
+    )
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
     bad_seed = ~np.all(np.isfinite(seeds), axis=1)
     if bad_seed.any():
@@ -306,8 +358,10 @@ def fit_batch(extrapolator, batch: TrackBatch, options: FitOptions, seeds: np.nd
         result.set_failed_nodes_nan(batch)
     fit_locations(result, batch, beamline_extrapolator)
     if track_states:
-        kept = {"predicted": (stages.predicted, stages.predicted_cov),
-                "filtered": (stages.filtered, stages.filtered_cov)}
+        kept = {
+            "predicted": (stages.predicted, stages.predicted_cov),
+            "filtered": (stages.filtered, stages.filtered_cov),
+        }
         if not no_smoother:
             kept["smoothed"] = (result.node_state.copy(), result.node_cov.copy())
         result.track_states = collect_track_states(batch, result, kept)
@@ -321,19 +375,19 @@ def collect_track_states(batch: TrackBatch, result: FitResult, kept: dict) -> Tr
     for state, cov in kept.values():
         state[failed] = np.nan
         cov[failed] = np.nan
-    return TrackStates({stage: kept[stage][0] for stage in kept}, {stage: kept[stage][1] for stage in kept},
-                       ~result.node_active)
+    return TrackStates(
+        {stage: kept[stage][0] for stage in kept}, {stage: kept[stage][1] for stage in kept}, ~result.node_active
+    )
 
 
-def run_fitter(fitter, batch: TrackBatch, options: FitOptions, seeds: np.ndarray, seed_covs: np.ndarray,
-               result: FitResult) -> None:
+def run_fitter(
+    fitter, batch: TrackBatch, options: FitOptions, seeds: np.ndarray, seed_covs: np.ndarray, result: FitResult
+) -> None:
     """Fit every track of `batch` with `fitter` (a registered fitter tuple, `pkf.fit.driver`)
     into `result`, with the outlier cut and removals of `options`; NaN on the nodes of the
     tracks that failed."""
-    track_loop(fitter)(fitter, batch.offsets, batch.z, batch.n_meas, batch.hx, batch.hy, batch.m, batch.sigma,
-               np.ascontiguousarray(seeds, dtype=np.float64), np.ascontiguousarray(seed_covs, dtype=np.float64),
-               options.outlier_cuts(), int(options.max_outliers), result.node_state, result.node_cov,
-               result.node_chi2, result.node_active, result.status, result.chi2, result.ndf, result.n_outliers)
+    nodes = TrackNodes.of(batch, seeds, seed_covs)
+    track_loop(fitter)(fitter, nodes, OutlierRule.of(options), FitOutputs.of(result))
     result.set_failed_nodes_nan(batch)
 
 
@@ -355,8 +409,14 @@ def fit_locations(result: FitResult, batch: TrackBatch, beamline_extrapolator=No
         zb = np.empty(idx.size)
         s_out = np.empty((idx.size, 5))
         c_out = np.empty((idx.size, 5, 5))
-        beamline_states(beamline_extrapolator, np.ascontiguousarray(batch.z[first][idx]),
-                        np.ascontiguousarray(result.node_state[first][idx]),
-                        np.ascontiguousarray(result.node_cov[first][idx]), zb, s_out, c_out)
+        beamline_states(
+            beamline_extrapolator,
+            np.ascontiguousarray(batch.z[first][idx]),
+            np.ascontiguousarray(result.node_state[first][idx]),
+            np.ascontiguousarray(result.node_cov[first][idx]),
+            zb,
+            s_out,
+            c_out,
+        )
         bz[idx], bs[idx], bc[idx] = zb, s_out, c_out
         result.locations["beamline"] = (bz, bs, bc)
