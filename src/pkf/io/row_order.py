@@ -4,13 +4,14 @@
 for groups numbered 0 … n_groups − 1: a counting sort by group (linear in the rows), then
 a stable sort of each group's rows by key. The groups of the reconstruction are small
 (a track's 3–40 hits: insertion sort) or a few hundred rows (an event's hits on one
-SciFi layer: numpy's stable merge sort), so the whole costs about one pass over the rows
+SciFi layer: a stable merge sort), so the whole costs about one pass over the rows
 where ``np.lexsort`` sorts all rows twice.
 
-Measured (issue 18, `pkf reconstruct`, 1,000 minimum-bias events at ν = 7.6): the two
-lexsorts that ordered the pattern's candidate hits by (track, row) and the fit's nodes by
-(track, z) cost ~0.7 ms of CPU per event; see `pkf.pipeline.triplet_pattern` and
-`pkf.fit.tracks.TrackBatch.from_candidates`.
+Measured (issue 18; the 738,363 candidate hits of 30,350 tracks in 100 minimum-bias events at
+ν = 7.6, CPU time, min of 7, the two alternating): the pattern's candidate hits by (track, row)
+0.578 → 0.064 ms per event, the fit's nodes by (track, z) 0.384 → 0.049 ms per event
+(`pkf.pipeline.triplet_pattern`, `pkf.fit.tracks.TrackBatch.from_candidates`); the same orders,
+bit for bit.
 """
 
 from __future__ import annotations
