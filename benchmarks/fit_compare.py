@@ -79,6 +79,24 @@ def _options(fitter: str):
     return FitOptions(iterations=1)
 
 
+#: The samples of fit_core.py and kernel_profile.py: (default file, events, generator).
+SAMPLES = {"pigun": ("/tmp/fit-compare-pigun-300.npz", 300, "gun"),
+           "minbias": ("/tmp/fit-compare-minbias-40.npz", 40, "minbias")}
+
+
+def load_sample(sample: str, path: Path | None = None):
+    """(TrackBatch, the .npz with its seeds and seed_covs) of `SAMPLES[sample]`, read from
+    `path` (default: the sample's file), made there first if absent."""
+    from pkf.fit.tracks import TrackBatch
+
+    default, events, generator = SAMPLES[sample]
+    path = Path(path or default)
+    if not path.is_file():
+        make_dataset(path, events, generator=generator)
+    d = np.load(path)
+    return TrackBatch(*(d[f] for f in BATCH_FIELDS)), d
+
+
 def _fit_function(name: str, geometry):
     from pkf.fit.reference import reference_extrapolator
 

@@ -58,17 +58,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=None, help="dataset .npz (default /tmp/fit-compare-<sample>.npz)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    if args.data is None:
-        args.data = Path(
-            "/tmp/fit-compare-pigun-300.npz" if args.sample == "pigun" else "/tmp/fit-compare-minbias-40.npz"
-        )
-    if not args.data.is_file():
-        if args.sample == "pigun":
-            fit_compare.make_dataset(args.data, 300)
-        else:
-            fit_compare.make_dataset(args.data, 40, generator="minbias")
-    d = np.load(args.data)
-    batch = TrackBatch(*(d[f] for f in fit_compare.BATCH_FIELDS))
+    batch, d = fit_compare.load_sample(args.sample, args.data)
+    args.data = args.data or Path(fit_compare.SAMPLES[args.sample][0])
     geometry = load_geometry("lhcb-like")
     results = {"data": str(args.data), "tracks": int(batch.n_tracks), "nodes": int(batch.z.size), "fitters": {}}
     for name in args.fitters.split(","):

@@ -45,7 +45,6 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
 from numba.core import codegen
 
 # ------------------------------------------------------------------------------------------
@@ -209,14 +208,9 @@ def fit_stage(args):
     import fit_compare
 
     from pkf.fit.options import FitOptions
-    from pkf.fit.tracks import TrackBatch
     from pkf.geometry import load_geometry
 
-    data = Path("/tmp/fit-compare-minbias-40.npz")  # fit_core.py --sample minbias's
-    if not data.is_file():
-        fit_compare.make_dataset(data, 40, generator="minbias")
-    d = np.load(data)
-    batch = TrackBatch(*(d[f] for f in fit_compare.BATCH_FIELDS))
+    batch, d = fit_compare.load_sample("minbias")  # fit_core.py --sample minbias's
     ext, fit = fit_compare._fit_function(args.fitter, load_geometry("lhcb-like"))
     options = FitOptions(max_outliers=0)
     fit(ext, batch, options, d["seeds"], d["seed_covs"])  # warm-up
