@@ -35,8 +35,8 @@ from pkf.io.reader import (
 )
 from pkf.io.schemas import spec_for
 
-__all__ = ["OffsetSource", "TableScan", "scan_table", "read_rows", "close_readers", "file_sha256", "with_sha256",
-           "BATCH_ROWS"]
+__all__ = ["OffsetSource", "TableScan", "scan_table", "scan_unhashed", "table_files", "read_rows", "close_readers",
+           "file_sha256", "with_sha256", "BATCH_ROWS"]
 
 #: Rows per record batch of a scan (about 15 MB of hits): bounds the scan's memory.
 BATCH_ROWS = 1 << 18
@@ -128,6 +128,24 @@ def scan_table(location: Path, schema: pa.Schema, name: str,
     return _scan(location, schema, name, check, hasher)
 
 
+class _NoHashing:
+    """A stand-in for :class:`~pkf.io.hashing.FileHasher` that hashes nothing (:func:`scan_unhashed`)."""
+
+    def submit(self, file: Path) -> None:
+        pass
+
+
+def scan_unhashed(location: Path, schema: pa.Schema, name: str) -> TableScan:
+    """:func:`scan_table` without hashing the files (``sha256`` left empty): for a scan in another
+    process while the caller hashes the files (:func:`table_files`) in its own order."""
+    return _scan(location, schema, name, None, _NoHashing())
+
+
+def table_files(location: Path) -> list[Path]:
+    """The Parquet files of a table found at ``location`` (a file, or a directory of them), in reading order."""
+    return _list_parquet_files(location) if location.is_dir() else [location]
+
+
 def with_sha256(scan: TableScan, hasher: FileHasher) -> TableScan:
     """The scan with the SHA-256 of each of its files, from the hasher it was scanned with."""
     return replace(scan, sha256=tuple(hasher.sha256(file) for file in scan.files))
@@ -137,7 +155,7 @@ def _scan(location: Path, schema: pa.Schema, name: str, check, hasher: FileHashe
     """:func:`scan_table`, its files submitted to ``hasher`` (``sha256`` left empty)."""
     spec = spec_for(schema)
     key = spec.unique_key if spec is not None else ("event_id",)
-    files = _list_parquet_files(location) if location.is_dir() else [location]
+    files = table_files(location)
     if not files and (spec is None or not spec.allow_empty):
         raise InputError(f"{location}: directory contains no Parquet files ({name} must not be empty)")
     for file in files:  # hashed on the hasher's thread while this one decodes and checks

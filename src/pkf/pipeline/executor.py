@@ -137,6 +137,25 @@ def add_summaries(total: dict | None, part: dict) -> dict:
     return out
 
 
+#: The kinds of partition (:func:`kernel_kind`) this process has reconstructed: its kernels are
+#: compiled or loaded for them, and forked workers inherit them.
+_WARM: set = set()
+
+
+def kernel_kind(task: PartitionTask) -> str:
+    """What decides which kernels (and argument types) a partition needs: the configuration and
+    which tables it has (MC matching only with truth)."""
+    import json
+
+    return json.dumps([task.config, sorted(task.tables)], sort_keys=True)
+
+
+def kernels_ready(task: PartitionTask) -> bool:
+    """Whether this process has already reconstructed a partition of the same kind as ``task``
+    (then a warm-up before forking workers would only cost time: 0.07 s for 400 minbias events)."""
+    return kernel_kind(task) in _WARM
+
+
 def reconstruct_task(task: PartitionTask, max_events: int | None = None,
                      progress: Callable[[int], None] | None = None):
     """Read a partition's rows and reconstruct them: (tables, summary); see :func:`reconstruct_batch`.
@@ -197,6 +216,7 @@ def reconstruct_task(task: PartitionTask, max_events: int | None = None,
         CtrlC.check()
     with StageClock(timing, "tables"):
         tables = run_tables(rows)
+    _WARM.add(kernel_kind(task))
     return tables, add_summaries(summary, {"timing": timing})
 
 
@@ -318,7 +338,7 @@ def _execute_local(tasks, workers, on_done, on_progress) -> None:
     queue = context.Queue()
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=context,
                              initializer=_init_worker, initargs=(cache_dir, queue)) as pool:
-        pending = {pool.submit(_run_partition_in_pool, t) for t in tasks}
+        pending = {pool.submit(_run_partition_in_pool, t) for t in largest_first(tasks)}
         try:
             while pending:
                 done, pending = wait(pending, timeout=PROGRESS_POLL_S, return_when=FIRST_COMPLETED)
@@ -331,6 +351,14 @@ def _execute_local(tasks, workers, on_done, on_progress) -> None:
             raise
         finally:
             queue.close()
+
+
+def largest_first(tasks: list[PartitionTask]) -> list[PartitionTask]:
+    """The tasks by decreasing number of hits rows (stable): the workers end their last partitions
+    closer together (partitions of 25 minbias events at ν = 7.6 hold 166k to 225k hits): the
+    two workers' last ends 0.17, 0.22 s apart in file order -> 0.05, 0.09 s (400 events, 16
+    partitions, machine under load)."""
+    return sorted(tasks, key=lambda t: t.tables["hits"][1] - t.tables["hits"][2])
 
 
 def _terminate_workers(pool) -> None:

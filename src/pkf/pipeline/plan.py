@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +30,16 @@ from pkf.io.reader import (
 )
 from pkf.io.schemas import HITS, MC_HITS, PARTICLES
 from pkf.io.hashing import FileHasher
-from pkf.io.stream import TableScan, find_and_scan, read_rows, scan_table, with_sha256
+from pkf.io.stream import (
+    TableScan,
+    close_readers,
+    find_and_scan,
+    read_rows,
+    scan_table,
+    scan_unhashed,
+    table_files,
+    with_sha256,
+)
 from pkf.pipeline.inputs import hit_layer_checks, resolve_geometry
 
 __all__ = ["DatasetPlan", "Partition", "plan_dataset"]
@@ -111,13 +121,16 @@ def cut_partitions(hits: TableScan, events_per_batch: int) -> list[Partition]:
     return out
 
 
-def check_consistency(tables: dict, partitions: list[Partition]) -> None:
-    """MC truth against hits, one partition's event range at a time (ranges tile all event ids)."""
+def check_consistency(tables: dict, partitions: list[Partition], which: range | None = None) -> None:
+    """MC truth against hits, one partition's event range at a time (ranges tile all event ids).
+
+    which: the indices of the partitions to check, in order (default: all).
+    """
     hits, mc, particles = tables["hits"], tables.get("mc_hits"), tables.get("particles")
     if mc is None and particles is None:
         return
     bounds = [None] + [p.first_event for p in partitions[1:]] + [None]
-    for k in range(len(partitions)):
+    for k in range(len(partitions)) if which is None else which:
         lo_ev, hi_ev = bounds[k], bounds[k + 1]
         parts, sources = {}, {}
         for name, scan, cols in (("hits", hits, ["event_id", "hit_id"]),
@@ -132,10 +145,66 @@ def check_consistency(tables: dict, partitions: list[Partition]) -> None:
         validate_consistency(parts["hits"], parts["particles"], parts["mc_hits"], sources=sources)
 
 
-def plan_dataset(path: str | Path, events_per_batch: int, geometry: str | None = None) -> DatasetPlan:
+def _scan_tables(path: Path, truth: dict, check_layers, hasher: FileHasher, helper: Executor | None) -> dict:
+    """Scan hits, particles and mc_hits (name -> TableScan, ``sha256`` left to ``hasher``).
+
+    With a ``helper`` thread, mc_hits (the largest table: 132 of the 178 MB of 400 minbias events
+    at ν = 7.6) is scanned there while this thread scans hits and particles (Parquet decoding, most
+    of a scan, releases the GIL); its files are still hashed after theirs (the content hash's
+    order), and a bad mc_hits is reported only once hits and particles passed, as in a serial scan.
+    """
+    location = truth["mc_hits"]
+    mc = helper.submit(scan_unhashed, location, MC_HITS, "mc_hits") if helper is not None and location else None
+    try:
+        tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers, hasher=hasher)}
+        if truth["particles"] is not None:
+            tables["particles"] = scan_table(truth["particles"], PARTICLES, "particles", hasher=hasher)
+        if location is not None and mc is None:
+            tables["mc_hits"] = scan_table(location, MC_HITS, "mc_hits", hasher=hasher)
+        elif mc is not None:
+            for file in table_files(location):
+                hasher.submit(file)
+            tables["mc_hits"] = mc.result()
+    finally:
+        if mc is not None:
+            mc.cancel()  # not started yet (an error above): not needed
+    return tables
+
+
+def _check_and_close(tables: dict, partitions: list[Partition], which: range) -> None:
+    """:func:`check_consistency` on a helper thread, which then closes the files it read."""
+    try:
+        check_consistency(tables, partitions, which)
+    finally:
+        close_readers()
+
+
+def _check_consistency_on(tables: dict, partitions: list[Partition], helper: Executor | None) -> None:
+    """:func:`check_consistency`, the later half of the partitions on the ``helper`` thread (if given)
+    while this one checks the first half; the error of the first bad partition is raised."""
+    n = len(partitions)
+    if helper is None or n < 2 or ("mc_hits" not in tables and "particles" not in tables):
+        check_consistency(tables, partitions)
+        return
+    later = helper.submit(_check_and_close, tables, partitions, range(n // 2, n))
+    try:
+        check_consistency(tables, partitions, range(n // 2))
+    finally:
+        later.cancel()
+    later.result()
+
+
+def plan_dataset(path: str | Path, events_per_batch: int, geometry: str | None = None,
+                 parallel: bool = True) -> DatasetPlan:
     """Validate the dataset at ``path`` in bounded memory (docs/cli.md#exit-codes-and-messages) and cut it into partitions.
 
     geometry: ``--geometry`` NAME|FILE.toml, if given (:func:`~pkf.pipeline.inputs.resolve_geometry`).
+    parallel: share the scans and checks with a helper thread (:func:`_scan_tables`,
+        :func:`_check_consistency_on`): the same plan and the same first error as without.
+        400 minbias events at ν = 7.6 (178 MB, 25 events per partition), 2 cores, 6 alternating
+        calls each: 0.549 (min) / 0.578 (median) s serial -> 0.463 / 0.531 s. The helper is a
+        thread, not a forked worker: after a fork every write of this process into its kept heap
+        (pkf.pipeline.allocator) copies the page, and the scan on forked workers cost 0.52-0.70 s.
 
     Raises:
         InputError: one line naming the file, the column and the first bad row.
@@ -153,13 +222,11 @@ def plan_dataset(path: str | Path, events_per_batch: int, geometry: str | None =
 
     digest = hashlib.sha256()  # over every file, hits then particles then mc_hits (as content_hash)
     # the files are hashed on a thread while this one decodes and checks them (pkf.io.hashing)
-    with FileHasher(digest) as hasher:
-        tables = {"hits": find_and_scan(path, "hits", HITS, True, check_layers, hasher=hasher)}
-        for name, schema in (("particles", PARTICLES), ("mc_hits", MC_HITS)):
-            if truth[name] is not None:
-                tables[name] = scan_table(truth[name], schema, name, hasher=hasher)
+    with FileHasher(digest) as hasher, ThreadPoolExecutor(1, thread_name_prefix="pkf-validate") as helper:
+        helper = helper if parallel else None
+        tables = _scan_tables(path, truth, check_layers, hasher, helper)
         partitions = cut_partitions(tables["hits"], events_per_batch)
-        check_consistency(tables, partitions)
+        _check_consistency_on(tables, partitions, helper)
         tables = {name: with_sha256(scan, hasher) for name, scan in tables.items()}
     return DatasetPlan(path, meta or {}, found, tables, tuple(partitions), digest.hexdigest()[:16])
 

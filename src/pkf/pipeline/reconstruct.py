@@ -28,7 +28,7 @@ from pkf.pipeline import triplet_pattern
 from pkf.pipeline.allocator import keep_freed_memory
 from pkf.pipeline.batch import StageClock, metrics_from_counts
 from pkf.pipeline.config import ReconstructionConfig
-from pkf.pipeline.executor import PartitionTask, default_workers, execute, reconstruct_task
+from pkf.pipeline.executor import PartitionTask, default_workers, execute, kernels_ready, reconstruct_task
 from pkf.pipeline.plan import DatasetPlan, plan_dataset, with_keys
 from pkf.pipeline.progress import PartitionProgress, progress_bar
 from pkf.pipeline.resume import RunStaging, complete_run
@@ -122,7 +122,7 @@ def run_reconstruction(dataset_path: str | Path, out: str | Path, config: Recons
         todo = [t for t in _tasks(plan, config, staging.path) if t.name not in done]
         events_of = {p.name: p.n_events for p in plan.partitions}
         use_workers = 1 if scheduler is None and (workers <= 1 or len(todo) <= 1) else workers
-        if todo and (use_workers > 1 or scheduler is not None):
+        if todo and (use_workers > 1 or scheduler is not None) and not kernels_ready(todo[0]):
             reconstruct_task(todo[0], max_events=1)  # compile or load kernels here: workers load the cache
         with progress_bar(plan.n_events, "reconstruct", progress=progress,
                           initial=sum(events_of[n] for n in done)) as bar:
