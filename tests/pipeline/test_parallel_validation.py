@@ -5,6 +5,7 @@ workers take the partitions largest first; a process whose kernels are warm skip
 
 import json
 import shutil
+from concurrent.futures import CancelledError
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,55 @@ def test_parallel_plan_equals_serial(dataset):
         assert (other.files, other.file_rows, other.sha256, other.ignored_columns) == \
                (scan.files, scan.file_rows, scan.sha256, scan.ignored_columns)
         assert np.array_equal(other.events, scan.events) and np.array_equal(other.starts, scan.starts)
+
+
+class _LateFuture:
+    """A future whose work starts only when its result is asked for (a helper thread still busy)."""
+
+    def __init__(self, fn, args):
+        self.fn, self.args, self.cancelled = fn, args, False
+
+    def cancel(self) -> bool:
+        self.cancelled = True
+        return True
+
+    def result(self):
+        if self.cancelled:
+            raise CancelledError
+        return self.fn(*self.args)
+
+
+class _LateHelper:
+    """A stand-in for the helper thread pool: runs nothing until asked (see :class:`_LateFuture`)."""
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+    def submit(self, fn, *args):
+        return _LateFuture(fn, args)
+
+
+def test_helper_that_starts_late(dataset, tmp_path, monkeypatch):
+    """Work not yet started on the helper is done, not cancelled, when this thread's part passed
+    (a valid dataset plans as serially); with an error here first, that error is raised."""
+    import pkf.pipeline.plan as plan_module
+
+    serial = plan_dataset(dataset, 1, parallel=False)
+    monkeypatch.setattr(plan_module, "ThreadPoolExecutor", _LateHelper)
+    late = plan_dataset(dataset, 1)
+    assert late.partitions == serial.partitions and late.content_hash == serial.content_hash
+    copy = Path(shutil.copytree(dataset, tmp_path / "data"))
+    for event in (1, 4):
+        _set_cell(copy / "mc_hits.parquet", "hit_id", _first_row_of_event(copy / "mc_hits.parquet", event), 10**9)
+    with pytest.raises(InputError) as caught:
+        plan_dataset(copy, 1)
+    assert f"row {_first_row_of_event(copy / 'mc_hits.parquet', 1)} " in str(caught.value)
 
 
 @pytest.mark.parametrize("events", [[0], [4], [1, 5], [2, 3]])

@@ -165,9 +165,10 @@ def _scan_tables(path: Path, truth: dict, check_layers, hasher: FileHasher, help
             for file in table_files(location):
                 hasher.submit(file)
             tables["mc_hits"] = mc.result()
-    finally:
+    except BaseException:
         if mc is not None:
-            mc.cancel()  # not started yet (an error above): not needed
+            mc.cancel()  # if not started yet: not needed after an error above
+        raise
     return tables
 
 
@@ -189,8 +190,9 @@ def _check_consistency_on(tables: dict, partitions: list[Partition], helper: Exe
     later = helper.submit(_check_and_close, tables, partitions, range(n // 2, n))
     try:
         check_consistency(tables, partitions, range(n // 2))
-    finally:
-        later.cancel()
+    except BaseException:
+        later.cancel()  # if not started yet: the error above comes first
+        raise
     later.result()
 
 
