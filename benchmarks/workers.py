@@ -6,8 +6,9 @@ Two rates per run, from run.json ``execution``:
 
 - ``work``: events / wall time of executing the partitions (workers started, data read,
   reconstructed and written) — what the workers scale;
-- ``end_to_end``: events / wall time of the whole command, including the serial
-  validation of the dataset and hashing of its files in the main process.
+- ``end_to_end``: events / wall time of the whole command, including the validation of
+  the dataset and hashing of its files in the main process (before any work, on three
+  threads: `pkf.pipeline.plan.plan_dataset`).
 
 Prints a table and writes JSON (``--json``). Example::
 
