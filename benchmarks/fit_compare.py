@@ -84,13 +84,18 @@ SAMPLES = {"pigun": ("/tmp/fit-compare-pigun-300.npz", 300, "gun"),
            "minbias": ("/tmp/fit-compare-minbias-40.npz", 40, "minbias")}
 
 
+def sample_path(sample: str, path: Path | None = None) -> Path:
+    """`path`, or the default file of `SAMPLES[sample]`."""
+    return Path(path or SAMPLES[sample][0])
+
+
 def load_sample(sample: str, path: Path | None = None):
     """(TrackBatch, the .npz with its seeds and seed_covs) of `SAMPLES[sample]`, read from
-    `path` (default: the sample's file), made there first if absent."""
+    `sample_path(sample, path)`, made there first if absent."""
     from pkf.fit.tracks import TrackBatch
 
-    default, events, generator = SAMPLES[sample]
-    path = Path(path or default)
+    _, events, generator = SAMPLES[sample]
+    path = sample_path(sample, path)
     if not path.is_file():
         make_dataset(path, events, generator=generator)
     d = np.load(path)

@@ -59,7 +59,7 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     batch, d = fit_compare.load_sample(args.sample, args.data)
-    args.data = args.data or Path(fit_compare.SAMPLES[args.sample][0])
+    args.data = fit_compare.sample_path(args.sample, args.data)
     geometry = load_geometry("lhcb-like")
     results = {"data": str(args.data), "tracks": int(batch.n_tracks), "nodes": int(batch.z.size), "fitters": {}}
     for name in args.fitters.split(","):
