@@ -24,15 +24,15 @@ Measured (1,000 tracks each, main 35b62d4; errors per node as median / 99 % / ma
 | π gun, Bryson–Frazier (branch bf) | 1.2e-12 / 3.0e-11 / 2.4e-10 | 8.0e-11 / 5.8e-8 / 5.0e-7 | 3.5e-10 / 1.1e-7 / 5.0e-7 |
 
 The weighted mean (the information form: no large terms cancel) is the only one whose
-covariances hold ~1e-9 everywhere. RTS and the modified Bryson–Frazier smoother (Bierman
+covariances hold 1e-8 everywhere. RTS and the modified Bryson–Frazier smoother (Bierman
 1973; tried on branch ``bf``, 2e3b01b and 7c35f6f, not merged) subtract: P_f + A·(P_s −
 P_p)·Aᵀ and P_f − P_f·Λ·P_f, where the forward filter's P_f still holds the seed's loose
 prior (the slopes at node 0; q/p along the whole VELO, 10 % of q/p before the UT). The
 Bryson–Frazier branch took node 0 in information form from node 1 (without that: 1e-4 at
 node 0 on the telescope) and still lost up to 1.6e-5 of the q/p variance here, and up to
 7e-3 at the first hit of 0.75 % of the long tracks of ``pkf reconstruct`` (pattern seeds,
-two passes) — for a smoother 7–20 % cheaper (fit_core's loop: 291–298 against 313–314
-ns/node; the states, 10× closer). A sample of 40 random tracks showed its worst q/p
+two passes) — for a fit 5–10 % cheaper (fit_core's loop, minimum bias: 291–298 against
+313–314 ns/node, of which the smoother 95 against 119; the states, 10× closer). A sample of 40 random tracks showed its worst q/p
 variance at 6e-7: the bad cases are ~1 % of tracks, so judge a smoother on hundreds.
 
     python benchmarks/smoother_precision.py [--sample minbias] [--tracks 1000] [--json out.json]
