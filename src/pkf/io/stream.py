@@ -136,8 +136,8 @@ class _NoHashing:
 
 
 def scan_unhashed(location: Path, schema: pa.Schema, name: str) -> TableScan:
-    """:func:`scan_table` without hashing the files (``sha256`` left empty): for a scan in another
-    process while the caller hashes the files (:func:`table_files`) in its own order."""
+    """:func:`scan_table` without hashing the files (``sha256`` left empty): for a scan on another
+    thread while the caller hashes the files (:func:`table_files`) in its own order."""
     return _scan(location, schema, name, None, _NoHashing())
 
 
