@@ -60,3 +60,21 @@ def test_lanes_give_the_scalar_outputs_bitwise(sample, smoother, iterations, max
     for name in OUTPUTS:
         a, b = getattr(scalar, name), getattr(lanes, name)
         assert a.tobytes() == b.tobytes(), name
+
+
+def test_lane_order_is_a_stable_sort_by_length_within_windows(sample):
+    """The tracks that take the lanes keep their order within each window but for a stable
+    sort by number of nodes; the others (a NaN seed, ndf ≤ 0) follow in their own order."""
+    s, batch, seeds = sample
+    nodes = TrackNodes.of(batch, seeds, s.seed_covs)
+    window = 8
+    order, n_grouped = lane_order(nodes, window)
+    lengths = np.diff(batch.offsets)
+    dims = np.add.reduceat(batch.n_meas, batch.offsets[:-1]) - 5
+    grouped = np.flatnonzero((dims > 0) & np.isfinite(seeds).all(axis=1))
+    assert n_grouped == grouped.size and n_grouped < batch.n_tracks  # the NaN seed is left out
+    expected = np.concatenate([
+        w[np.argsort(lengths[w], kind="stable")] for w in np.split(grouped, np.arange(window, grouped.size, window))
+    ])
+    assert np.array_equal(order[:n_grouped], expected)
+    assert np.array_equal(order[n_grouped:], np.setdiff1d(np.arange(batch.n_tracks), grouped))

@@ -5,6 +5,7 @@ import pytest
 from fit_helpers import TruthSample, telescope_without_material
 from scipy import stats
 
+from pkf.fit.tracks import FitResult, TrackBatch, fit_locations
 from pkf.geometry import load_geometry
 from pkf.params.gauss import gaussian_core
 
@@ -80,3 +81,22 @@ def test_exact_helix_gives_zero_residuals():
     # and a 1 µm displacement of one hit is seen
     sample.batch.m[first[0], 0] += 0.001
     assert sample.fit(max_outliers=0, iterations=2).chi2[0] > 10 * result.chi2[0]
+
+
+def test_fit_locations_take_each_tracks_end_nodes_and_nan_without_nodes():
+    """`fit_locations`: first_hit / last_hit are the first and last node of each track (z,
+    state, covariance), NaN for a track without nodes."""
+    offsets = np.array([0, 3, 3, 5])
+    z = np.arange(5.0) * 100.0
+    ints, pairs = np.zeros(5, dtype=np.int64), np.zeros((5, 2))
+    batch = TrackBatch(offsets, z, ints, ints, ints + 2, pairs, pairs, pairs, pairs)
+    result = FitResult.empty(batch)
+    result.node_state[:] = np.arange(25.0).reshape(5, 5)
+    result.node_cov[:] = np.arange(125.0).reshape(5, 5, 5)
+    fit_locations(result, batch)
+    for name, rows in (("first_hit", [0, 3]), ("last_hit", [2, 4])):
+        zs, state, cov = result.locations[name]
+        assert np.array_equal(zs[[0, 2]], z[rows])
+        assert np.array_equal(state[[0, 2]], result.node_state[rows])
+        assert np.array_equal(cov[[0, 2]], result.node_cov[rows])
+        assert np.isnan(zs[1]) and np.isnan(state[1]).all() and np.isnan(cov[1]).all()

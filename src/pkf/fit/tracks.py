@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import numba as nb
 import numpy as np
 
 from pkf.fit.beamline import beamline_states
@@ -276,7 +277,10 @@ class FitResult:
 
     def set_failed_nodes_nan(self, batch: TrackBatch) -> None:
         """NaN states, covariances and χ² on the nodes of the tracks whose status is not ok."""
-        failed = np.repeat(self.status != STATUS_OK, batch.n_nodes)
+        failed_tracks = self.status != STATUS_OK
+        if not failed_tracks.any():  # the usual case: no per-node mask to build
+            return
+        failed = np.repeat(failed_tracks, batch.n_nodes)
         if failed.any():
             self.node_state[failed] = np.nan
             self.node_cov[failed] = np.nan
@@ -352,7 +356,7 @@ def fit_batch(
         extrapolator, max_nodes(batch.offsets), kalman.iterations or 1, SMOOTHER_CODES[kalman.smoother], stages
     )
     run_fitter(fitter, batch, options, seeds, seed_covs, result)
-    bad_seed = ~np.all(np.isfinite(seeds), axis=1)
+    bad_seed = ~finite_rows(seeds)
     if bad_seed.any():
         result.status[bad_seed] = STATUS_NO_SEED
         result.set_failed_nodes_nan(batch)
@@ -394,14 +398,14 @@ def run_fitter(
 def fit_locations(result: FitResult, batch: TrackBatch, beamline_extrapolator=None) -> None:
     """Add the first-hit and last-hit states and, given a beamline extrapolator, the
     beamline state of the tracks with status ok (`beamline_states`, the same code for
-    every fitter, docs/physics.md#the-kalman-core) to `result.locations`: name → (z, state (T, 5), cov (T, 5, 5))."""
-    t = batch.n_tracks
-    has_nodes = batch.n_nodes > 0
-    first = np.where(has_nodes, batch.offsets[:-1], 0)
-    last = np.where(has_nodes, batch.offsets[1:] - 1, 0)
-    result.locations["first_hit"] = (batch.z[first], result.node_state[first], result.node_cov[first])
-    result.locations["last_hit"] = (batch.z[last], result.node_state[last], result.node_cov[last])
+    every fitter, docs/physics.md#the-kalman-core) to `result.locations`: name → (z, state (T, 5), cov (T, 5, 5)).
+    NaN for a track without nodes (its status is not ok)."""
+    first, last = end_nodes(batch.offsets)
+    first_hit = take_nodes(first, batch.z, result.node_state, result.node_cov)
+    result.locations["first_hit"] = first_hit
+    result.locations["last_hit"] = take_nodes(last, batch.z, result.node_state, result.node_cov)
     if beamline_extrapolator is not None:
+        t = batch.n_tracks
         idx = np.flatnonzero(result.status == STATUS_OK)
         bz = np.full(t, np.nan)
         bs = np.full((t, 5), np.nan)
@@ -409,14 +413,57 @@ def fit_locations(result: FitResult, batch: TrackBatch, beamline_extrapolator=No
         zb = np.empty(idx.size)
         s_out = np.empty((idx.size, 5))
         c_out = np.empty((idx.size, 5, 5))
-        beamline_states(
-            beamline_extrapolator,
-            np.ascontiguousarray(batch.z[first][idx]),
-            np.ascontiguousarray(result.node_state[first][idx]),
-            np.ascontiguousarray(result.node_cov[first][idx]),
-            zb,
-            s_out,
-            c_out,
-        )
+        z_first, state_first, cov_first = first_hit
+        beamline_states(beamline_extrapolator, z_first[idx], state_first[idx], cov_first[idx], zb, s_out, c_out)
         bz[idx], bs[idx], bc[idx] = zb, s_out, c_out
         result.locations["beamline"] = (bz, bs, bc)
+
+
+@nb.njit(cache=True)
+def end_nodes(offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last): each track's first and last node row of the CSR `offsets`; −1 for a
+    track without nodes."""
+    n_tracks = offsets.size - 1
+    first = np.full(n_tracks, -1, dtype=np.int64)
+    last = np.full(n_tracks, -1, dtype=np.int64)
+    for t in range(n_tracks):
+        if offsets[t + 1] > offsets[t]:
+            first[t] = offsets[t]
+            last[t] = offsets[t + 1] - 1
+    return first, last
+
+
+@nb.njit(cache=True)
+def take_nodes(rows: np.ndarray, z: np.ndarray, state: np.ndarray, cov: np.ndarray):
+    """(z[rows], state[rows], cov[rows]), new C-contiguous arrays, NaN where rows is −1:
+    numpy's fancy indexing of (n, 5, 5) rows took 1.5× as long (2,000 telescope tracks,
+    71 → 48 ns per track for both ends)."""
+    z_out = np.empty(rows.size)
+    state_out = np.empty((rows.size, 5))
+    cov_out = np.empty((rows.size, 5, 5))
+    for i in range(rows.size):
+        k = rows[i]
+        if k < 0:
+            z_out[i] = np.nan
+            state_out[i] = np.nan
+            cov_out[i] = np.nan
+            continue
+        z_out[i] = z[k]
+        for a in range(5):
+            state_out[i, a] = state[k, a]
+            for b in range(5):
+                cov_out[i, a, b] = cov[k, a, b]
+    return z_out, state_out, cov_out
+
+
+@nb.njit(cache=True)
+def finite_rows(a: np.ndarray) -> np.ndarray:
+    """Rows of the 2-d `a` whose every element is finite (numpy's ``np.isfinite(a).all(axis=1)``
+    costs 4× as much on 2,000 × 5)."""
+    out = np.empty(a.shape[0], dtype=np.bool_)
+    for i in range(a.shape[0]):
+        ok = True
+        for j in range(a.shape[1]):
+            ok = ok and np.isfinite(a[i, j])
+        out[i] = ok
+    return out

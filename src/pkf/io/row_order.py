@@ -19,7 +19,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["group_sort_order"]
+__all__ = ["group_sort_order", "insertion_sort"]
 
 #: Groups of at most this many rows are sorted by insertion, larger ones by merge sort.
 INSERTION_MAX = 32
@@ -47,7 +47,7 @@ def group_sort_order(group, key, n_groups):
         lo = bounds[b]
         hi = bounds[b + 1]
         if hi - lo <= INSERTION_MAX:
-            _insertion_sort(order, key, lo, hi)
+            insertion_sort(order, key, lo, hi)
         else:
             seg = order[lo:hi].copy()
             order[lo:hi] = seg[np.argsort(key[seg], kind="mergesort")]
@@ -55,8 +55,9 @@ def group_sort_order(group, key, n_groups):
 
 
 @nb.njit(cache=True, inline="always")
-def _insertion_sort(order, key, lo, hi):
-    """Sort order[lo:hi] by key[order[·]], stably (an equal key stays behind)."""
+def insertion_sort(order, key, lo, hi):
+    """Sort order[lo:hi] by key[order[·]], stably (an equal key stays behind), in place:
+    for short or nearly sorted runs."""
     for i in range(lo + 1, hi):
         row = order[i]
         k = key[row]
