@@ -1,10 +1,11 @@
 """The pieces of `benchmarks/vs_acts.py` that need no `pyacts` (CI has no bench extra):
-the conversion of ACTS's fitted parameters to pkf's state, and pkf's Bethe–Heitler
-mixture in ACTS's JSON format."""
+the conversion of ACTS's fitted parameters to pkf's state, pkf's Bethe–Heitler
+mixture in ACTS's JSON format, and the timing rule (the same CPU budget on both sides)."""
 
 import importlib.util
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -65,3 +66,22 @@ def test_bethe_heitler_mixture_in_acts_format(vs_acts, tmp_path):
         cdf = (w / w.sum() * ndtr((Z_GRID[:, None] - mu) / sd)).sum(-1)
         assert np.abs(cdf - mixture.cdf(Z_GRID, t)).max() < 0.005
     assert info["max_cdf_difference"] < 0.005
+
+
+def test_timing_fills_the_same_cpu_budget_on_both_sides(vs_acts):
+    """Short calls are repeated until they fill min_seconds of CPU (pkf's ~5 ms fits), long
+    ones at least `repeat` times; ACTS's Sequencer gets the events the same rule asks for."""
+    calls = []
+
+    def burn():  # ~1 ms of CPU
+        calls.append(1)
+        t0 = time.process_time()
+        while time.process_time() - t0 < 1e-3:
+            pass
+        return len(calls)
+
+    best, median, last = vs_acts.best_cpu(3, burn, min_seconds=0.03)
+    assert last == len(calls) and 25 <= len(calls) - 1 <= 40  # after the warm-up call
+    assert 1e-3 <= best <= median < 5e-3
+    assert vs_acts.calls_for_budget(7, 0.055, 2.0) == 37  # ACTS's KF events
+    assert vs_acts.calls_for_budget(7, 1.9, 2.0) == 7  # its GSF events
