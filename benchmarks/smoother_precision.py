@@ -126,6 +126,31 @@ def fit_track(fitter, ext, batch, seeds, covs, t, smoother):
     return status, state, cov
 
 
+def smoother_errors(fitter, ext, batch, seeds, covs, t, smoothers: dict) -> dict | None:
+    """Track t fitted by each of `smoothers` (name → code) and by `exact_fit` on the same
+    linearised model: name → (state error, covariance error) per node, max over the
+    parameters of |Δx_i|/σ_i and over the covariance of |ΔC_ij|/(σ_iσ_j), σ from the
+    50-digit smoothed covariance. None if a fit failed."""
+    fits = {name: fit_track(fitter, ext, batch, seeds, covs, t, code) for name, code in smoothers.items()}
+    if any(status != 0 for status, _, _ in fits.values()):
+        return None
+    lo, hi = batch.offsets[t], batch.offsets[t + 1]
+    meas = [
+        [(batch.hx[k, j], batch.hy[k, j], batch.m[k, j], batch.sigma[k, j]) for j in range(batch.n_meas[k])]
+        for k in range(lo, hi)
+    ]
+    # the fitter's scratch holds the forward filter of the last fit: the same for every smoother
+    x_ref, c_ref = exact_fit(fitter.jac, fitter.noise, fitter.pred, fitter.filt, meas, seeds[t], covs[t])
+    sigma = np.sqrt(np.einsum("nii->ni", c_ref))
+    return {
+        name: (
+            np.max(np.abs(state - x_ref) / sigma, axis=1),
+            np.max(np.abs(cov - c_ref) / (sigma[:, :, None] * sigma[:, None, :]), axis=(1, 2)),
+        )
+        for name, (_, state, cov) in fits.items()
+    }
+
+
 def summary(errors: list[np.ndarray]) -> dict:
     values = np.concatenate(errors) if errors else np.zeros(1)
     return {"median": float(np.median(values)), "q99": float(np.quantile(values, 0.99)), "max": float(values.max())}
@@ -151,19 +176,10 @@ def main() -> None:
     tracks = np.random.default_rng(1).choice(batch.n_tracks, min(args.tracks, batch.n_tracks), replace=False)
     errors = {name: {"state": [], "cov": [], "state_node0": [], "cov_node0": []} for name in smoothers}
     for t in tracks:
-        fits = {name: fit_track(fitter, ext, batch, seeds, covs, t, code) for name, code in smoothers.items()}
-        if any(status != 0 for status, _, _ in fits.values()):
+        track_errors = smoother_errors(fitter, ext, batch, seeds, covs, t, smoothers)
+        if track_errors is None:
             continue
-        lo, hi = batch.offsets[t], batch.offsets[t + 1]
-        meas = [
-            [(batch.hx[k, j], batch.hy[k, j], batch.m[k, j], batch.sigma[k, j]) for j in range(batch.n_meas[k])]
-            for k in range(lo, hi)
-        ]
-        x_ref, c_ref = exact_fit(fitter.jac, fitter.noise, fitter.pred, fitter.filt, meas, seeds[t], covs[t])
-        sigma = np.sqrt(np.einsum("nii->ni", c_ref))
-        for name, (_, state, cov) in fits.items():
-            e_state = np.max(np.abs(state - x_ref) / sigma, axis=1)
-            e_cov = np.max(np.abs(cov - c_ref) / (sigma[:, :, None] * sigma[:, None, :]), axis=(1, 2))
+        for name, (e_state, e_cov) in track_errors.items():
             for key, value in (
                 ("state", e_state),
                 ("cov", e_cov),

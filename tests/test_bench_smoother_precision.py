@@ -37,26 +37,13 @@ def test_weighted_mean_matches_the_50_digit_fit_and_rts_loses_digits_at_node_0(b
     fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1)
     worst = {"weighted-mean": 0.0, "rts": 0.0}
     rts_node0 = []
+    smoothers = {"rts": SMOOTHER_RTS, "weighted-mean": SMOOTHER_WEIGHTED_MEAN}
     for t in range(batch.n_tracks):
-        fits = {
-            name: bench.fit_track(fitter, ext, batch, sample.seeds, sample.seed_covs, t, code)
-            for name, code in (("rts", SMOOTHER_RTS), ("weighted-mean", SMOOTHER_WEIGHTED_MEAN))
-        }
-        assert all(status == 0 for status, _, _ in fits.values())
-        lo, hi = batch.offsets[t], batch.offsets[t + 1]
-        meas = [
-            [(batch.hx[k, j], batch.hy[k, j], batch.m[k, j], batch.sigma[k, j]) for j in range(batch.n_meas[k])]
-            for k in range(lo, hi)
-        ]
-        x_ref, c_ref = bench.exact_fit(fitter.jac, fitter.noise, fitter.pred, fitter.filt, meas, sample.seeds[t],
-                                       sample.seed_covs[t])  # fmt: skip
-        sigma = np.sqrt(np.einsum("nii->ni", c_ref))
-        for name, (_, state, cov) in fits.items():
-            e_state = np.max(np.abs(state - x_ref) / sigma)
-            e_cov = np.abs(cov - c_ref) / (sigma[:, :, None] * sigma[:, None, :])
-            worst[name] = max(worst[name], e_state, e_cov.max())
-            if name == "rts":
-                rts_node0.append(e_cov[0].max())
+        errors = bench.smoother_errors(fitter, ext, batch, sample.seeds, sample.seed_covs, t, smoothers)
+        assert errors is not None
+        for name, (e_state, e_cov) in errors.items():
+            worst[name] = max(worst[name], e_state.max(), e_cov.max())
+        rts_node0.append(errors["rts"][1][0])
     assert batch.n_tracks >= 8
     assert worst["weighted-mean"] < 1e-7  # measured ~1e-9
     assert np.median(rts_node0) > 100 * worst["weighted-mean"]  # the seed's loose prior at node 0
