@@ -48,12 +48,27 @@ the lanes gain there the forward side gives back: gathering or writing a node's 
 numbers into lanes (each a different cache line of the (…, 5, 5, GROUP) rows) measured
 37 (node by node) to 107 (track by track) ns/node alone, and sorting the whole batch by
 length costs the forward filter ~50 ns/node in cache misses (windows of 128: ~20).
-Tried (all bitwise identical, all slower; branch fit19's history): the forward filter in
+The output rows (state and covariance, 240 bytes per node in arrays of tens of MB) are
+prefetched for writing one node before the backward filter writes them
+(`_prefetch_outputs`), as `pkf.fit.kalman._combine_nodes` does for its blocks: their
+write-allocate misses had stalled the stores. Measured (`fit_tracks_in_lanes` alone,
+parametrized, one pass, old and new code interleaved in one process, 16 rounds):
+minimum bias (fit_core's 257,055 nodes) 341 → 319 ns/node, ×0.936 (quartiles
+0.927–0.945; the same A/B with identical code on both sides: 1.004 and 1.010); the
+telescope of benchmarks/vs_acts.py ×0.96 and ×0.95 in the two allocation orders,
+relative to that null A/B (there, placement in memory alone moves the time by up to
+±15 % between the two sides: 1.156 one way, 0.882 the other). Outputs bitwise the same.
+Tried (all bitwise identical, none faster; branch fit19's history): the forward filter in
 lanes too (F·P·Fᵀ + Q dense and the update with selects, SIMD over the tracks:
 forward-only 235 → 379 ns/node), the scalar forward writing straight into the lanes
 track by track (→ 434) or node by node over the lanes (→ 380), `_fit_once` then a copy
 into lanes (→ 366), and the backward step reading F, Q in place from the track-major rows
-instead of gathering them (no change). Next: a forward filter whose F·P·Fᵀ uses the
+instead of gathering them (no change), and (2026-12) the backward step without the exact
+zeros and ones of F and Q where every lane's step has them (generated like
+`info_step_lane`: VELO steps 123 instead of 460 products around the solve, layer steps
+that keep q/p 315), chosen node by node: minimum bias ×1.002 (VELO steps only) and
+×0.990 (both; quartiles 0.95–1.05) — the step waits on its chain of pivots, not on its
+products. Next: a forward filter whose F·P·Fᵀ uses the
 parametrized steps' structure in lanes (the dense one costs more than the latency it
 hides), or fewer numbers per node to move (F and Q of a parametrized step have ~10
 non-trivial entries each).
@@ -79,7 +94,7 @@ from pkf.fit.driver import (
 from pkf.fit.kalman import SMOOTHER_DEFERRED, SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter, _fit_once
 from pkf.fit.status import STATUS_OK
 from pkf.io.row_order import insertion_sort
-from pkf.jit import NO_REFCOUNT, stack_array
+from pkf.jit import NO_REFCOUNT, prefetch_write, stack_array
 from pkf.physics.linalg import LANES, copy5, info_step_lane, invert_spd_ldl_lane
 
 #: Tracks fitted together, one per SIMD lane (the lanes of `invert_spd_ldl_lane`).
@@ -248,6 +263,22 @@ def _combine_lane(p, info, x_p, info_vec, a, c, x, bad_pivot, bad_diag, l):
     bad_diag[l] = bad
 
 
+@nb.njit(cache=True, inline="always")
+def _prefetch_outputs(sc, k, out):
+    """Hint the cache to fetch, for writing, the output rows (state, covariance) of node k
+    of the lanes that have one: the backward filter writes them one node later, so that
+    their write-allocate misses (the rows of a batch's nodes, 240 bytes each, are tens of
+    MB) overlap a node's arithmetic instead of stalling its stores."""
+    for l in range(GROUP):
+        if k < sc.n[l]:
+            node = sc.first[l] + k
+            for byte in range(node * out.cov.strides[0], (node + 1) * out.cov.strides[0], 64):
+                prefetch_write(out.cov, byte)
+            prefetch_write(out.cov, (node + 1) * out.cov.strides[0] - 1)
+            prefetch_write(out.state, node * out.state.strides[0])
+            prefetch_write(out.state, (node + 1) * out.state.strides[0] - 1)
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _backward_lanes(sc, n_max, nodes, out):
     """The backward information filter and the weighted-mean combination of
@@ -302,6 +333,7 @@ def _backward_lanes(sc, n_max, nodes, out):
                         out.cov[node, i, j] = c[i, j, l]
         if k == 0:
             break
+        _prefetch_outputs(sc, k - 1, out)
         for l in range(GROUP):
             _gather_node(sc.pred[l, k - 1], sc.jac[l, k], pred_prev, jac_k, l)
             _gather_node(sc.filt[l, k - 1], sc.noise[l, k], filt_prev, noise_k, l)
