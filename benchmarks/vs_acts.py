@@ -40,6 +40,12 @@ short), the same budget on both sides. The parametrized fit of the 2,000 tracks 
 where best of 25 was 2.52–2.63 (3 fresh processes each). ACTS's KF events (~55 ms) vary by
 a few per cent.
 
+Between runs the ratios move more than within one: pkf's telescope fit depends on where
+its arrays land in memory (the same code, interleaved in one process, ran 12–15 % apart
+depending on which side allocated first; `pkf.fit.kalman_lanes`), and ACTS's KF took
+30.5–36.1 µs per track in four runs of one day on one machine (parametrized / ACTS KF
+0.081–0.095). Compare rows over several runs.
+
 Needs the optional `bench` extra (`pip install -e .[bench]`, i.e. pyacts==48.1.0).
 """
 
