@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numba as nb
 from llvmlite import ir
 from numba.core import cgutils, types
 from numba.core import options as _numba_options
@@ -95,6 +96,18 @@ def prefetch_write(typingctx, array, byte_offset):
     if not isinstance(array, types.Array) or not isinstance(byte_offset, types.Integer):
         return None
     return types.void(array, byte_offset), _prefetch_codegen(1)
+
+
+@nb.njit(cache=True, inline="always")
+def prefetch_write_rows(array, lo, hi):
+    """`prefetch_write` of every cache line of rows lo:hi of the C-contiguous `array`
+    (none if hi ≤ lo): the output rows a Kalman combination writes next."""
+    if hi <= lo:
+        return
+    row = array.strides[0]
+    for byte in range(lo * row, hi * row, 64):
+        prefetch_write(array, byte)
+    prefetch_write(array, hi * row - 1)  # the last line, where the rows end inside it
 
 
 # ----------------------------------------------------------------------------------

@@ -153,7 +153,7 @@ from pkf.physics.linalg import (
     zero55,
 )
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.jit import NO_REFCOUNT, prefetch_write, stack_array
+from pkf.jit import NO_REFCOUNT, prefetch_write_rows, stack_array
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -553,10 +553,8 @@ def _combine_nodes(lo, hi, x_p, p, info, info_vec, out_state, out_cov):
         v_blk = info_vec[blk]
         # the next block's output rows (nodes max(lo, base − LANES) … base − 1), for writing
         nxt = max(lo, base - LANES)
-        for byte in range(nxt * out_cov.strides[0], base * out_cov.strides[0], 64):
-            prefetch_write(out_cov, byte)
-        for byte in range(nxt * out_state.strides[0], base * out_state.strides[0], 64):
-            prefetch_write(out_state, byte)
+        prefetch_write_rows(out_cov, nxt, base)
+        prefetch_write_rows(out_state, nxt, base)
         for l in range(LANES):  # one SIMD loop over the lanes
             bad_pivot[l] = 0.0
             invert_spd_ldl_lane(p_blk, c_lanes, bad_pivot, l)  # P⁻¹

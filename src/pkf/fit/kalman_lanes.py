@@ -94,7 +94,7 @@ from pkf.fit.driver import (
 from pkf.fit.kalman import SMOOTHER_DEFERRED, SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter, _fit_once
 from pkf.fit.status import STATUS_OK
 from pkf.io.row_order import insertion_sort
-from pkf.jit import NO_REFCOUNT, prefetch_write, stack_array
+from pkf.jit import NO_REFCOUNT, prefetch_write_rows, stack_array
 from pkf.physics.linalg import LANES, copy5, info_step_lane, invert_spd_ldl_lane
 
 #: Tracks fitted together, one per SIMD lane (the lanes of `invert_spd_ldl_lane`).
@@ -272,11 +272,8 @@ def _prefetch_outputs(sc, k, out):
     for l in range(GROUP):
         if k < sc.n[l]:
             node = sc.first[l] + k
-            for byte in range(node * out.cov.strides[0], (node + 1) * out.cov.strides[0], 64):
-                prefetch_write(out.cov, byte)
-            prefetch_write(out.cov, (node + 1) * out.cov.strides[0] - 1)
-            prefetch_write(out.state, node * out.state.strides[0])
-            prefetch_write(out.state, (node + 1) * out.state.strides[0] - 1)
+            prefetch_write_rows(out.cov, node, node + 1)
+            prefetch_write_rows(out.state, node, node + 1)
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
