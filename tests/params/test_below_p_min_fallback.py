@@ -82,9 +82,9 @@ def test_above_p_min_the_table_is_used(setup, p):
     shrink = 1.0 - ext.extrapolation[slot][0] * abs(state[4])
     moved = state.copy()
     moved[4] /= shrink
-    meta, coef = params.ut_to_scifi.as_arrays()
+    meta, cells = params.ut_to_scifi.as_arrays()
     table = np.empty(5)
-    assert ut_to_scifi_extrapolate(meta, coef, moved, table, np.empty((5, 5))) == TRANSPORT_OK
+    assert ut_to_scifi_extrapolate(meta, cells, moved, table, np.empty((5, 5))) == TRANSPORT_OK
     np.testing.assert_array_equal(out[:4], table[:4])
 
 

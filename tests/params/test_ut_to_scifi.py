@@ -9,6 +9,7 @@ import time
 
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 import pytest
 
@@ -71,11 +72,11 @@ def arrays(table):
     return table.as_arrays()
 
 
-def extrapolate(meta, coef, states):
+def extrapolate(meta, cells, states):
     out = np.empty_like(states)
     jac = np.empty((states.shape[0], 5, 5))
     status = np.empty(states.shape[0], dtype=np.int64)
-    ut_to_scifi_extrapolate_many(meta, coef, states, out, jac, status)
+    ut_to_scifi_extrapolate_many(meta, cells, states, out, jac, status)
     return out, jac, status
 
 
@@ -123,9 +124,9 @@ def log_accuracy(label, table, counts):
 
 
 def check_accuracy(field_map, arrays, ut, p, label):
-    meta, coef = arrays
+    meta, cells = arrays
     truth = rk4_propagate_many(ut, Z_UT, Z_T, TRUTH_STEP, *field_map.args)
-    out, jac, status = extrapolate(meta, coef, ut)
+    out, jac, status = extrapolate(meta, cells, ut)
     assert np.all(status == 0)
     assert np.all(np.isfinite(out)) and np.all(np.isfinite(jac))
     assert np.array_equal(out[:, 4], ut[:, 4])  # f_qop = identity
@@ -156,7 +157,7 @@ def test_accuracy_for_scattered_tracks(field_map, arrays):
 
 def test_grid_points_on_the_ideal_direction_between_q_over_p_nodes(field_map, table, arrays):
     """At grid points only the q/p polynomial fit and the RK4 step of the tabulation err."""
-    meta, coef = arrays
+    meta, cells = arrays
     rng = np.random.default_rng(5)
     n = 400
     sx = table.slopes_x()[rng.integers(5, 45, n)]
@@ -165,7 +166,7 @@ def test_grid_points_on_the_ideal_direction_between_q_over_p_nodes(field_map, ta
     beta_x, beta_y = table.bend_at(sx, sy)
     states = np.column_stack([sx * Z_UT, sy * Z_UT, sx + beta_x * qop, sy + beta_y * qop, qop])
     truth = rk4_propagate_many(states, Z_UT, Z_T, TRUTH_STEP, *field_map.args)
-    out, _, status = extrapolate(meta, coef, states)
+    out, _, status = extrapolate(meta, cells, states)
     assert np.all(status == 0)
     diff = out - truth
     assert np.sqrt(np.mean(diff[:, 0] ** 2)) < 0.010  # mm
@@ -202,10 +203,10 @@ def test_bend_is_the_slope_offset_of_a_track_from_the_origin(field_map, table):
 
 
 def test_straight_line_at_zero_q_over_p(arrays):
-    meta, coef = arrays
+    meta, cells = arrays
     state = np.array([300.0, -200.0, 0.12, -0.07, 0.0])
     out, jac = np.empty(5), np.empty((5, 5))
-    assert ut_to_scifi_extrapolate(meta, coef, state, out, jac) == 0
+    assert ut_to_scifi_extrapolate(meta, cells, state, out, jac) == 0
     dz = Z_T - Z_UT
     np.testing.assert_array_equal(out, [300.0 + 0.12 * dz, -200.0 - 0.07 * dz, 0.12, -0.07, 0.0])
     np.testing.assert_array_equal(jac[:4, :4], [[1, 0, dz, 0], [0, 1, 0, dz], [0, 0, 1, 0], [0, 0, 0, 1]])
@@ -214,7 +215,7 @@ def test_straight_line_at_zero_q_over_p(arrays):
 
 @pytest.mark.parametrize("region", ["inside", "edge-and-outside", "below-p-min"])
 def test_jacobian_matches_finite_differences(table, arrays, region):
-    meta, coef = arrays
+    meta, cells = arrays
     rng = np.random.default_rng({"inside": 1, "edge-and-outside": 2, "below-p-min": 3}[region])
     n = 200
     if region == "inside":
@@ -239,9 +240,9 @@ def test_jacobian_matches_finite_differences(table, arrays, region):
     worst = 0.0
     for state in states:
         out, jac = np.empty(5), np.empty((5, 5))
-        status = ut_to_scifi_extrapolate(meta, coef, state, out, jac)
+        status = ut_to_scifi_extrapolate(meta, cells, state, out, jac)
         assert status == (STATUS_BELOW_P_MIN if region == "below-p-min" else 0)
-        fd = finite_difference_jacobian(meta, coef, state, steps)
+        fd = finite_difference_jacobian(meta, cells, state, steps)
         scale = np.abs(jac) + 1e-6 * np.abs(jac).max(axis=0)  # column scale for the ~0 elements
         worst = max(worst, float(np.max(np.abs(fd - jac) / scale)))
         np.testing.assert_array_equal(jac[4], [0, 0, 0, 0, 1])
@@ -250,7 +251,7 @@ def test_jacobian_matches_finite_differences(table, arrays, region):
 
 
 def test_below_p_min_returns_status_4_with_finite_output(table, arrays):
-    meta, coef = arrays
+    meta, cells = arrays
     base = np.array([400.0, 250.0, 400.0 / Z_UT, 250.0 / Z_UT, 0.0])
     out, jac = np.empty(5), np.empty((5, 5))
     for qop in (1 / 2999.0, -1 / 2999.0, 1 / 1000.0, -1 / 300.0, 1e-2, -1.0, 1e3):
@@ -258,31 +259,31 @@ def test_below_p_min_returns_status_4_with_finite_output(table, arrays):
         state[4] = qop
         out[:] = np.nan
         jac[:] = np.nan
-        assert ut_to_scifi_extrapolate(meta, coef, state, out, jac) == STATUS_BELOW_P_MIN
+        assert ut_to_scifi_extrapolate(meta, cells, state, out, jac) == STATUS_BELOW_P_MIN
         assert np.all(np.isfinite(out)) and np.all(np.isfinite(jac))
         assert out[4] == qop
     for qop in (1 / 3000.0, -1 / 3000.0, 1 / 3001.0):
         state = base.copy()
         state[4] = qop
-        assert ut_to_scifi_extrapolate(meta, coef, state, out, jac) == 0
+        assert ut_to_scifi_extrapolate(meta, cells, state, out, jac) == 0
     # continuous at |w| = 1, and the linear continuation bends a softer track further
     at, beyond, further = np.empty(5), np.empty(5), np.empty(5)
     for sign in (1.0, -1.0):
         for q, o in ((1 / 3000.0, at), (1 / 2999.999, beyond), (1 / 2000.0, further)):
             state = base.copy()
             state[4] = sign * q
-            ut_to_scifi_extrapolate(meta, coef, state, o, jac)
+            ut_to_scifi_extrapolate(meta, cells, state, o, jac)
         assert np.allclose(beyond[:4], at[:4], rtol=0, atol=1e-3)
         assert abs(further[0] - base[0] - base[2] * (Z_T - Z_UT)) > abs(at[0] - base[0] - base[2] * (Z_T - Z_UT))
 
 
 def test_nan_input_does_not_crash(arrays):
-    meta, coef = arrays
+    meta, cells = arrays
     out, jac = np.empty(5), np.empty((5, 5))
     for k in range(5):
         state = np.array([100.0, 100.0, 0.04, 0.04, 1e-4])
         state[k] = np.nan
-        ut_to_scifi_extrapolate(meta, coef, state, out, jac)
+        ut_to_scifi_extrapolate(meta, cells, state, out, jac)
         assert np.isnan(out[:4]).any()
 
 
@@ -309,17 +310,17 @@ def test_interpolation_reproduces_quadratics_exactly():
             return a[0] + a[1] * x + a[2] * y + a[3] * x * x + a[4] * x * y + a[5] * y * y
 
         tab = synthetic_table(quad)
-        meta, coef = tab.as_arrays()
+        meta, cells = tab.as_arrays()
         # inside the grid, at the edges and extrapolated up to the clamp
         for sx, sy in rng.uniform([-0.3, -0.25], [0.3, 0.25], (200, 2)):
-            f, fx, fy = interpolate_grid(coef[0, :, :, 0], tab.slope_x0, tab.slope_dx, tab.slope_y0, tab.slope_dy, sx, sy)
+            f, fx, fy = interpolate_grid(cells[:, :, 0, 0], tab.slope_x0, tab.slope_dx, tab.slope_y0, tab.slope_dy, sx, sy)
             assert f == pytest.approx(quad(sx, sy), abs=1e-12)
             assert fx == pytest.approx(a[1] + 2 * a[3] * sx + a[4] * sy, abs=1e-10)
             assert fy == pytest.approx(a[2] + a[4] * sx + 2 * a[5] * sy, abs=1e-10)
             # through the extrapolator: w = 1, ideal direction, so out − straight line = A_1
             state = np.array([sx * Z_UT, sy * Z_UT, sx, sy, 1.0 / 3000.0])
             out, jac = np.empty(5), np.empty((5, 5))
-            assert ut_to_scifi_extrapolate(meta, coef, state, out, jac) == 0
+            assert ut_to_scifi_extrapolate(meta, cells, state, out, jac) == 0
             dz = Z_T - Z_UT
             straight = np.array([state[0] + sx * dz, state[1] + sy * dz, sx, sy])
             np.testing.assert_allclose(out[:4] - straight, quad(sx, sy) * np.arange(1, 5), atol=1e-9)
@@ -345,40 +346,42 @@ def test_interpolation_reproduces_grid_values_and_is_not_bilinear():
 
 def test_outside_the_grid_coefficients_freeze_beyond_the_clamp():
     tab = synthetic_table(lambda x, y: x * x + y)
-    meta, coef = tab.as_arrays()
+    meta, cells = tab.as_arrays()
     edge = 0.25 + MAX_EXTRAPOLATION_CELLS * tab.slope_dx
-    f_edge, fx_edge, _ = interpolate_grid(coef[0, :, :, 0], tab.slope_x0, tab.slope_dx, tab.slope_y0, tab.slope_dy, edge, 0.0)
+    f_edge, fx_edge, _ = interpolate_grid(cells[:, :, 0, 0], tab.slope_x0, tab.slope_dx, tab.slope_y0, tab.slope_dy, edge, 0.0)
     assert f_edge == pytest.approx(edge * edge, abs=1e-12) and fx_edge != 0.0
     for far in (edge + 0.01, 1.0, 50.0):
-        f, fx, _ = interpolate_grid(coef[0, :, :, 0], tab.slope_x0, tab.slope_dx, tab.slope_y0, tab.slope_dy, far, 0.0)
+        f, fx, _ = interpolate_grid(cells[:, :, 0, 0], tab.slope_x0, tab.slope_dx, tab.slope_y0, tab.slope_dy, far, 0.0)
         assert f == pytest.approx(f_edge, abs=1e-12) and fx == 0.0
 
 
 def test_many_equals_single(arrays):
-    meta, coef = arrays
+    meta, cells = arrays
     rng = np.random.default_rng(9)
     states = np.column_stack([rng.uniform(-600, 600, 50), rng.uniform(-600, 600, 50), rng.uniform(-0.3, 0.3, 50),
                               rng.uniform(-0.3, 0.3, 50), rng.uniform(-1 / 2000, 1 / 2000, 50)])
-    out, jac, status = extrapolate(meta, coef, states)
+    out, jac, status = extrapolate(meta, cells, states)
     for k in range(50):
         o, j = np.empty(5), np.empty((5, 5))
-        assert ut_to_scifi_extrapolate(meta, coef, states[k], o, j) == status[k]
+        assert ut_to_scifi_extrapolate(meta, cells, states[k], o, j) == status[k]
         np.testing.assert_array_equal(o, out[k])
         np.testing.assert_array_equal(j, jac[k])
 
 
 def test_as_arrays_layout(table, arrays):
-    meta, coef = arrays
+    meta, cells = arrays
     assert meta.shape == (META_SIZE,) and meta.dtype == np.float64
     assert list(meta[:10]) == [Z_UT, Z_T, 3000.0, -0.25, table.slope_dx, 50, -0.25, table.slope_dy, 50, table.bend]
     assert list(meta[10:18]) == [k for pair in DEFAULT_DEGREES for k in pair]
     assert list(meta[18:21]) == [table.bend_x2, table.bend_y2, table.bend_xy]
     assert meta[21] == 1.0 and meta[22] == 23 and not meta[23:].any()  # no soft range
     assert table.slope_dx == pytest.approx(0.5 / 49)
-    assert coef.shape == (4, 50, 50, 23) and coef.flags.c_contiguous and coef.dtype == np.float64
+    # cell-major: cells[i, j, u] are output u's columns at grid point (i, j), the table's coef[u, i, j]
+    assert cells.shape == (50, 50, 4, 23) and cells.flags.c_contiguous and cells.dtype == np.float64
+    np.testing.assert_array_equal(cells, table.coef.transpose(1, 2, 0, 3))
     # y, ty use 7 + 2·5 = 17 columns; the padding is zero
-    assert np.all(coef[1, :, :, 17:] == 0.0) and np.all(coef[3, :, :, 17:] == 0.0)
-    assert np.all(np.isfinite(coef))
+    assert np.all(cells[:, :, 1, 17:] == 0.0) and np.all(cells[:, :, 3, 17:] == 0.0)
+    assert np.all(np.isfinite(cells))
     assert table.tabulation["n_qop"] == 20 and table.tabulation["qop_nodes"] == "chebyshev-first-kind"
 
 
@@ -427,7 +430,7 @@ def test_small_table_in_a_uniform_field_matches_rk4():
     they are at the µm level (in the field map the map's own trilinear ripple dominates)."""
     field = uniform_field(0.0, 0.3, 0.0)
     tab = tabulate_ut_to_scifi(field, nx=11, ny=11, n_qop=20, max_step=50.0)
-    meta, coef = tab.as_arrays()
+    meta, cells = tab.as_arrays()
     # the fitted ideal direction: −κ·B·z/2 on the axis, to the path-length factors off it
     assert tab.bend == pytest.approx(-C_LIGHT * 0.3 * Z_UT / 2, rel=2e-3)
     # off the axis, to first order in the deflection, a particle from the origin with slopes
@@ -444,7 +447,7 @@ def test_small_table_in_a_uniform_field_matches_rk4():
     states = np.column_stack([s[:, 0] * Z_UT, s[:, 1] * Z_UT, s[:, 0] + beta_x * qop + rng.normal(0, 2e-3, n),
                               s[:, 1] + beta_y * qop + rng.normal(0, 2e-3, n), qop])
     truth = rk4_propagate_many(states, Z_UT, Z_T, 10.0, *field.args)
-    out, _, status = extrapolate(meta, coef, states)
+    out, _, status = extrapolate(meta, cells, states)
     assert np.all(status == 0)
     diff = out - truth
     assert np.sqrt(np.mean(diff[:, 0] ** 2)) < 0.003  # mm
@@ -455,3 +458,34 @@ def test_small_table_in_a_uniform_field_matches_rk4():
     assert np.max(np.abs(diff[:, 1])) < 0.013
     assert np.max(np.abs(diff[:, 2])) < 1.3e-5
     assert np.max(np.abs(diff[:, 3])) < 6e-6
+
+
+def test_six_columns_gives_the_numbers_of_six_per_column():
+    """The SIMD interpolation of a cell's columns (`_six_columns`, the evaluation's and the
+    localisation's) is per column the same products and sums as `_six`: equal bit for bit."""
+    from pkf.params.ut_to_scifi import _six, _six_columns, interpolation_weights
+
+    @nb.njit
+    def both(cells, u, i, j, xi, psi, n):
+        ex, ey, w, w_xi, w_psi = interpolation_weights(xi, psi)
+        fast = np.zeros((3, n))
+        _six_columns(cells, u, i, j, ex, ey, n, w, w_xi, w_psi, fast[0], fast[1], fast[2])
+        slow = np.zeros((3, n))
+        for c in range(n):
+            slow[0, c] = _six(cells, u, i, j, ex, ey, c, w)
+            slow[1, c] = _six(cells, u, i, j, ex, ey, c, w_xi)
+            slow[2, c] = _six(cells, u, i, j, ex, ey, c, w_psi)
+        return fast, slow
+
+    rng = np.random.default_rng(11)
+    cells = np.ascontiguousarray(rng.normal(size=(6, 5, 4, 29)) * 10.0 ** rng.integers(-8, 3, size=(6, 5, 4, 29)))
+    for _ in range(50):
+        u, i, j = rng.integers(0, 4), rng.integers(1, 5), rng.integers(1, 4)
+        xi, psi = rng.uniform(-1.5, 1.5, 2)
+        fast, slow = both(cells, u, i, j, xi, psi, rng.integers(1, 30))
+        np.testing.assert_array_equal(fast, slow)
+
+
+def test_degrees_beyond_the_evaluation_buffer_are_refused():
+    with pytest.raises(ValueError, match="at most"):
+        synthetic_table(lambda x, y: x, degrees=((41, 12), (1, 0), (1, 0), (1, 0)))  # 65 columns

@@ -69,11 +69,11 @@ def arrays(shipped):
     return shipped.as_arrays()
 
 
-def extrapolate(meta, coef, states):
+def extrapolate(meta, cells, states):
     out = np.empty_like(states)
     jac = np.empty((states.shape[0], 5, 5))
     status = np.empty(states.shape[0], dtype=np.int64)
-    ut_to_scifi_extrapolate_many(meta, coef, np.ascontiguousarray(states), out, jac, status)
+    ut_to_scifi_extrapolate_many(meta, cells, np.ascontiguousarray(states), out, jac, status)
     return out, jac, status
 
 
@@ -107,19 +107,19 @@ def acceptance_tracks(field, n, seed, scatter):
 
 
 def test_shipped_table_covers_1p5_gev(shipped, arrays):
-    meta, coef = arrays
+    meta, cells = arrays
     assert shipped.p_min == 3000.0 and shipped.p_low == 1500.0 and shipped.covered_p_min == 1500.0
     assert covered_p_min(meta) == 1500.0 and meta[META_W_MAX] == 2.0 and meta.size == META_SIZE
     assert (shipped.nx, shipped.ny) == (50, 100)
-    assert shipped.soft is not None and np.all(np.isfinite(coef))
+    assert shipped.soft is not None and np.all(np.isfinite(cells))
     assert shipped.bend_y2 < -300.0  # the fringe field's fall of the bend with |y/z|
 
 
 @pytest.mark.parametrize("scatter", [False, True], ids=["luminous-region", "scattered"])
 def test_accuracy_per_momentum_bin(field_map, arrays, scatter):
-    meta, coef = arrays
+    meta, cells = arrays
     ut, truth, p = acceptance_tracks(field_map, 24000, 31 + scatter, scatter)
-    out, jac, status = extrapolate(meta, coef, ut)
+    out, jac, status = extrapolate(meta, cells, ut)
     assert np.all(status == 0)  # p ≥ 1.5 GeV: inside the table's range
     assert np.all(np.isfinite(out)) and np.all(np.isfinite(jac))
     diff = out - truth
@@ -148,17 +148,17 @@ def _off_cell_boundary(states, meta):
 
 @pytest.mark.parametrize("p_range", [(1500.0, 2990.0), (900.0, 1490.0)], ids=["soft-range", "below-p-low"])
 def test_soft_range_jacobian_matches_finite_differences(shipped, arrays, p_range):
-    meta, coef = arrays
+    meta, cells = arrays
     rng = np.random.default_rng(41)
     states = _off_cell_boundary(_states(shipped, rng, 150, *p_range), meta)
     steps = np.array([3e-4, 3e-4, 1e-7, 1e-7, 1e-11])
     worst = 0.0
     for state in states:
         out, jac = np.empty(5), np.empty((5, 5))
-        status = ut_to_scifi_extrapolate(meta, coef, state, out, jac)
+        status = ut_to_scifi_extrapolate(meta, cells, state, out, jac)
         assert status == (0 if p_range[0] >= 1500.0 else STATUS_BELOW_P_MIN)
         assert np.all(np.isfinite(out)) and np.all(np.isfinite(jac))
-        fd = finite_difference_jacobian(meta, coef, state, steps)
+        fd = finite_difference_jacobian(meta, cells, state, steps)
         scale = np.abs(jac) + 1e-6 * np.abs(jac).max(axis=0)
         worst = max(worst, float(np.max(np.abs(fd - jac) / scale)))
     assert states.shape[0] > 100
@@ -168,7 +168,7 @@ def test_soft_range_jacobian_matches_finite_differences(shipped, arrays, p_range
 def test_continuous_at_p_min_and_p_low(shipped, arrays):
     """At |w| = 1 (3 GeV) the soft correction starts with e² (value and slope continuous);
     at p_low the linear continuation starts (value continuous)."""
-    meta, coef = arrays
+    meta, cells = arrays
     base = np.array([400.0, 250.0, 400.0 / Z_UT, 250.0 / Z_UT, 0.0])
     for p_edge, status_beyond in ((3000.0, 0), (1500.0, STATUS_BELOW_P_MIN)):
         for sign in (1.0, -1.0):
@@ -177,7 +177,7 @@ def test_continuous_at_p_min_and_p_low(shipped, arrays):
                 state = base.copy()
                 state[4] = q
                 o, j = np.empty(5), np.empty((5, 5))
-                st = ut_to_scifi_extrapolate(meta, coef, state, o, j)
+                st = ut_to_scifi_extrapolate(meta, cells, state, o, j)
                 outs.append((st, o, j))
             assert outs[0][0] == 0 and outs[1][0] == status_beyond
             np.testing.assert_allclose(outs[0][1], outs[1][1], rtol=0, atol=1e-4)
@@ -189,21 +189,21 @@ def test_localized_evaluation_equals_the_table_in_the_soft_range(shipped, arrays
     """The forward search's evaluation (coefficients localised once per track) is the table
     at the localisation point in the covered range, and its Jacobian the derivative of what
     it returns also beyond p_low (linear or quadratic continuation)."""
-    meta, coef = arrays
-    poly = np.zeros((3, 4, coef.shape[3]))
+    meta, cells = arrays
+    poly = np.zeros((3, 4, cells.shape[3]))
     ref = np.zeros(2)
     rng = np.random.default_rng(43)
     for state in _states(shipped, rng, 60, 1500.0, 100000.0):
-        localize_ut_to_scifi(meta, coef, state[0], state[1], poly, ref)
+        localize_ut_to_scifi(meta, cells, state[0], state[1], poly, ref)
         o1, j1, o2, j2 = np.empty(5), np.empty((5, 5)), np.empty(5), np.empty((5, 5))
-        st1 = ut_to_scifi_extrapolate(meta, coef, state, o1, j1)
+        st1 = ut_to_scifi_extrapolate(meta, cells, state, o1, j1)
         st2 = ut_to_scifi_extrapolate_localized(meta, poly, ref, 0.0, state, o2, j2, quadratic)
         assert st1 == st2 == 0
         np.testing.assert_allclose(o2, o1, rtol=1e-12, atol=1e-9)
         np.testing.assert_allclose(j2[:, 2:], j1[:, 2:], rtol=1e-9, atol=1e-12)
     eps = np.array([1e-3, 1e-3, 1e-6, 1e-6, 1e-11])
     for state in _states(shipped, rng, 20, 1000.0, 1450.0):
-        localize_ut_to_scifi(meta, coef, state[0] + 5.0, state[1] - 5.0, poly, ref)
+        localize_ut_to_scifi(meta, cells, state[0] + 5.0, state[1] - 5.0, poly, ref)
         o, j = np.empty(5), np.empty((5, 5))
         assert ut_to_scifi_extrapolate_localized(meta, poly, ref, 10.0, state, o, j, quadratic) == STATUS_BELOW_P_MIN
         for k in range(5):
@@ -222,14 +222,14 @@ def test_trajectories_leaving_the_acceptance_are_harmless(field_map, shipped, ar
     acceptance (or curls in the magnet) the table was fitted with a small weight only — it
     must stay finite and almost never predict a point inside the acceptance (a ghost
     source for the forward search)."""
-    meta, coef = arrays
+    meta, cells = arrays
     rng = np.random.default_rng(47)
     s = rng.uniform(-0.25, 0.25, (20000, 2))
     qop = rng.choice([-1.0, 1.0], s.shape[0]) / rng.uniform(1500.0, 3000.0, s.shape[0])
     beta_x, beta_y = shipped.bend_at(s[:, 0], s[:, 1])
     states = np.column_stack([s[:, 0] * Z_UT, s[:, 1] * Z_UT, s[:, 0] + beta_x * qop, s[:, 1] + beta_y * qop, qop])
     truth = rk4_propagate_many(states, Z_UT, Z_T, 20.0, *field_map.args)
-    out, jac, status = extrapolate(meta, coef, states)
+    out, jac, status = extrapolate(meta, cells, states)
     assert np.all(status == 0) and np.all(np.isfinite(out)) and np.all(np.isfinite(jac))
     inside_true = np.isfinite(truth[:, 0]) & (np.abs(truth[:, 0]) < SCIFI_HALF[0]) & (np.abs(truth[:, 1]) < SCIFI_HALF[1])
     inside_pred = (np.abs(out[:, 0]) < SCIFI_HALF[0] - 20.0) & (np.abs(out[:, 1]) < SCIFI_HALF[1] - 20.0)
@@ -255,9 +255,9 @@ def test_json_round_trip_with_soft_range_is_exact(shipped):
     # an older file without the bend terms and the soft range: the paper's table to p_min
     del data["soft"], data["bend_terms"]
     old = UTSciFiTable.from_json_dict(data)
-    meta, coef = old.as_arrays()
+    meta, cells = old.as_arrays()
     assert old.soft is None and old.covered_p_min == 3000.0 and meta[META_W_MAX] == 1.0
-    assert coef.shape == shipped.coef.shape and (old.bend_x2, old.bend_y2, old.bend_xy) == (0.0, 0.0, 0.0)
+    assert cells.shape == shipped.coef.transpose(1, 2, 0, 3).shape and (old.bend_x2, old.bend_y2, old.bend_xy) == (0.0, 0.0, 0.0)
 
 
 def test_small_soft_table_in_a_uniform_field_matches_rk4():
@@ -267,11 +267,11 @@ def test_small_soft_table_in_a_uniform_field_matches_rk4():
     field = uniform_field(0.0, 0.3, 0.0)
     tab = tabulate_ut_to_scifi(field, nx=11, ny=11, max_step=50.0, p_low=1500.0)
     assert tab.covered_p_min == 1500.0 and tab.tabulation["soft_inside_share"] > 0.9
-    meta, coef = tab.as_arrays()
+    meta, cells = tab.as_arrays()
     rng = np.random.default_rng(4)
     states = _states(tab, rng, 300, 1500.0, 3000.0, spread=2e-3)
     truth = rk4_propagate_many(states, Z_UT, Z_T, 10.0, *field.args)
-    out, _, status = extrapolate(meta, coef, states)
+    out, _, status = extrapolate(meta, cells, states)
     assert np.all(status == 0)
     diff = out - truth
     assert np.sqrt(np.mean(diff[:, 0] ** 2)) < 0.040  # mm

@@ -16,7 +16,7 @@ def near_cell_boundary(states, meta, margin=1e-3):
     return (np.abs(frac(u) - 0.5) < margin) | (frac(u) < margin) | (np.abs(frac(v) - 0.5) < margin) | (frac(v) < margin)
 
 
-def finite_difference_jacobian(meta, coef, state, steps):
+def finite_difference_jacobian(meta, cells, state, steps):
     """Central differences of `ut_to_scifi_extrapolate` with the step `steps[j]` in state j."""
     jac = np.empty((5, 5))
     out_p, out_m, scratch = np.empty(5), np.empty(5), np.empty((5, 5))
@@ -24,7 +24,7 @@ def finite_difference_jacobian(meta, coef, state, steps):
         sp, sm = state.copy(), state.copy()
         sp[j] += steps[j]
         sm[j] -= steps[j]
-        ut_to_scifi_extrapolate(meta, coef, sp, out_p, scratch)
-        ut_to_scifi_extrapolate(meta, coef, sm, out_m, scratch)
+        ut_to_scifi_extrapolate(meta, cells, sp, out_p, scratch)
+        ut_to_scifi_extrapolate(meta, cells, sm, out_m, scratch)
         jac[:, j] = (out_p - out_m) / (2.0 * steps[j])
     return jac

@@ -438,7 +438,7 @@ def test_reference_trajectory_equals_parametrized_step(geometry, ext):
         q = rng.uniform(-1.0, 1.0) / 3200.0
         s = np.array([rng.normal(0, 5), rng.normal(0, 5), rng.normal(0, 0.08), rng.normal(0, 0.06), q])
         _, s_ut, _, _ = _chain(kalman_ext, s, layer_z[a], layer_z[f_layer[n_ut - 1]])
-        localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
+        localize_ut_to_scifi(ext.uts_meta, ext.uts_cells, s_ut[0], s_ut[1], poly, ref)
         ref_s = np.zeros((f_layer.size, 5))
         ref_f = np.zeros((f_layer.size, 5, 5))
         ref_q = np.zeros((f_layer.size, 5, 5))
@@ -464,7 +464,7 @@ def test_table_continuation_below_p_min(ext, sample, geometry):
     the 3 GeV table's quadratic continuation: ≈ 15 mm, its linear one ≈ 30 mm)."""
     poly, ref = new_table_buffers(ext)
     s = np.array([150.0, -80.0, 0.07, -0.03, 0.0])
-    localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s[0], s[1], poly, ref)
+    localize_ut_to_scifi(ext.uts_meta, ext.uts_cells, s[0], s[1], poly, ref)
     eloss = ext.extrapolation[int(np.flatnonzero(geometry.layer_subdetector == 1)[-1]), 0]
     out, jac = np.zeros(5), np.zeros((5, 5))
 
@@ -517,7 +517,7 @@ def test_table_continuation_below_p_min(ext, sample, geometry):
         state = np.array([*velo["state"][t], p["charge"][idx[t]] / mom[t]])
         a = int(np.argmin(np.abs(geometry.layer_z - velo["z"][t])))
         _, s_ut, _, _ = _chain(ext, state, geometry.layer_z[a], geometry.layer_z[last_ut])
-        localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s_ut[0], s_ut[1], poly, ref)
+        localize_ut_to_scifi(ext.uts_meta, ext.uts_cells, s_ut[0], s_ut[1], poly, ref)
         for quad in (True, False):
             o, j = np.zeros(5), np.zeros((5, 5))
             assert ut_to_scifi_extrapolate_localized(ext.uts_meta, poly, ref, eloss, s_ut, o, j, quad) == TRANSPORT_OK

@@ -91,19 +91,15 @@ class ParameterSet:
         self.check_geometry(geometry, source="parameters")
         slots = slot_structure(geometry)
         if self.ut_to_scifi is not None:
-            meta, coef = self.ut_to_scifi.as_arrays()
+            meta, cells = self.ut_to_scifi.as_arrays()
         else:
-            meta, coef = np.zeros(META_SIZE), np.zeros((4, 1, 1, 1))
-        # The same coef[u, i, j, col] as a view of storage ordered (i, j, u, col): the cells
-        # one evaluation reads (`ut_to_scifi_extrapolate`, six neighbours) are then a few
-        # contiguous runs rather than one run per output u and cell; same numbers read.
-        coef = np.ascontiguousarray(coef.transpose(1, 2, 0, 3)).transpose(2, 0, 1, 3)
+            meta, cells = np.zeros(META_SIZE), np.zeros((1, 1, 4, 1))
         field = geometry.reconstruction_field() if self.ut_to_scifi is not None else None
         fallback = (int(field.kind), field.params, field.grid) if field is not None else ()
         return ParametrizedExtrapolator(
             geometry.layer_z.astype(np.float64), slots.layer_sub, slots.sub_first, slots.sub_last,
             slots.within_type, slots.between_type, np.ascontiguousarray(self.extrapolation, dtype=np.float64),
-            np.ascontiguousarray(self.noise, dtype=np.float64), area_record(geometry), meta, coef, *fallback,
+            np.ascontiguousarray(self.noise, dtype=np.float64), area_record(geometry), meta, cells, *fallback,
         )
 
     def check_geometry(self, geometry: Geometry, source: str) -> None:

@@ -67,7 +67,7 @@ class ParametrizedExtrapolator(NamedTuple):
     noise (L, 6) parameters per slot; layer_area (L, 7) each layer's material area
     (`area_record`: half_x, half_y, hole_radius, hole_half_x, hole_half_y [mm], side,
     side_overlap [mm]) for the VELO layers a step crosses without a hit
-    (`add_crossed_velo_layers`); uts_meta/uts_coef the UT→SciFi table arrays;
+    (`add_crossed_velo_layers`); uts_meta/uts_cells the UT→SciFi table arrays (`UTSciFiTable.as_arrays`);
     field_kind/field_params/field_grid the field map of the UT→SciFi fallback below the
     table's p_min (`_apply`; field_kind < 0: no fallback, such steps return
     TRANSPORT_BELOW_P_MIN).
@@ -83,7 +83,7 @@ class ParametrizedExtrapolator(NamedTuple):
     noise: np.ndarray
     layer_area: np.ndarray
     uts_meta: np.ndarray
-    uts_coef: np.ndarray
+    uts_cells: np.ndarray
     field_kind: int = -1
     field_params: np.ndarray = np.zeros(1)
     field_grid: np.ndarray = np.zeros((1, 1, 1, 3))
@@ -129,7 +129,7 @@ def _rk4_fallback(field_kind, field_params, field_grid, seg_state, z0, z1, seg_j
 
 
 @nb.njit(cache=True, inline="always")
-def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac, field_kind, field_params,
+def _apply(kind, p, uts_meta, uts_cells, cur_state, z0, z1, seg_state, seg_jac, field_kind, field_params,
            field_grid, stages):
     """One paper step of `kind` with parameters `p`; returns a status. Below the UT→SciFi
     table's p_min the step is RK4 through the field map (`_rk4_fallback`, stages its
@@ -148,7 +148,7 @@ def _apply(kind, p, uts_meta, uts_coef, cur_state, z0, z1, seg_state, seg_jac, f
         shrink = 1.0 - p[0] * abs(qop)
         copy5(cur_state, seg_state)
         seg_state[4] = qop / shrink
-        status = ut_to_scifi_extrapolate(uts_meta, uts_coef, seg_state, seg_state, seg_jac)
+        status = ut_to_scifi_extrapolate(uts_meta, uts_cells, seg_state, seg_state, seg_jac)
         if status == TRANSPORT_BELOW_P_MIN and field_kind >= 0:
             copy5(cur_state, seg_state)
             seg_state[4] = qop / shrink
@@ -294,7 +294,7 @@ def parametrized_step(ext, state_in, z_from, z_to, state_out, jac_out, noise_out
         # are a single one); later ones go to scratch and are chained
         step_jac = jac_out if first else seg_jac
         step_noise_out = noise_out if first else seg_noise
-        status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_coef, state_out,
+        status = _apply(kind, ext.extrapolation[slot], ext.uts_meta, ext.uts_cells, state_out,
                         layer_z[cur], layer_z[nxt], seg_state, step_jac, ext.field_kind, ext.field_params,
                         ext.field_grid, work[1:5])  # work[1:5] is free until step_noise
         if status != TRANSPORT_OK:

@@ -524,7 +524,7 @@ def fit_extrapolation(kind: int, x1: np.ndarray, x2_ref: np.ndarray, z1: np.ndar
 
 
 @nb.njit(cache=True)
-def _apply_many(kind, p, x1, z1, z2, uts_meta, uts_coef, out):
+def _apply_many(kind, p, x1, z1, z2, uts_meta, uts_cells, out):
     jac = np.empty((5, 5))
     for i in range(z1.size):
         if kind == STEP_VELO:
@@ -535,7 +535,7 @@ def _apply_many(kind, p, x1, z1, z2, uts_meta, uts_coef, out):
         elif kind == STEP_UT_TO_SCIFI:
             shifted = x1[i].copy()
             shifted[4] = x1[i, 4] / (1.0 - p[0] * abs(x1[i, 4]))
-            if ut_to_scifi_extrapolate(uts_meta, uts_coef, shifted, out[i], jac) != 0:
+            if ut_to_scifi_extrapolate(uts_meta, uts_cells, shifted, out[i], jac) != 0:
                 out[i, :] = np.nan
             out[i, 4] = x1[i, 4]
         else:

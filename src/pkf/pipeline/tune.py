@@ -171,7 +171,7 @@ def run_tuning(dataset_path: str | Path, out: str | Path, overwrite: bool = Fals
     table = ut_to_scifi_table(geometry, field_map, progress)
     if table is not None:
         echo(f"tune: UT→SciFi table tabulated with RK4 ({time.perf_counter() - started:.0f} s so far)")
-    uts_arrays = table.as_arrays() if table is not None else (np.zeros(META_SIZE), np.zeros((4, 1, 1, 1)))
+    uts_arrays = table.as_arrays() if table is not None else (np.zeros(META_SIZE), np.zeros((1, 1, 4, 1)))
     slots = slot_structure(geometry)
     steps = sum(g.pairs.size > 0 for g in step_groups(slots, pairs, geometry.layer_z.size))
 

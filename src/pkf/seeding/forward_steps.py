@@ -155,4 +155,4 @@ def scan_states(ext, poly, ref, quadratic, l_from, sf_layers, s0, ds0, q_nodes, 
 
 def new_table_buffers(ext) -> tuple[np.ndarray, np.ndarray]:
     """Scratch (poly, ref) for `localize_ut_to_scifi` sized for the extrapolator's table."""
-    return np.zeros((3, 4, max(ext.uts_coef.shape[3], 1))), np.zeros(2)
+    return np.zeros((3, 4, max(ext.uts_cells.shape[3], 1))), np.zeros(2)

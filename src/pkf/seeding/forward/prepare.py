@@ -96,9 +96,9 @@ def _check_extrapolator(ext, geometry: Geometry) -> None:
     if not ok:
         raise InputError(f"geometry {geometry.name!r}: the forward extension needs the step types "
                          "velo_to_ut, ut, ut_to_scifi and scifi (docs/physics.md#the-parametrized-fitter)")
-    meta, coef = ext.uts_meta, ext.uts_coef
+    meta, cells = ext.uts_meta, ext.uts_cells
     if (meta.size < META_SIZE or meta[META_NX] < 3 or meta[META_NY] < 3 or meta[META_P_MIN] <= 0
-            or coef.ndim != 4 or coef.shape[1] != int(meta[META_NX]) or coef.shape[2] != int(meta[META_NY])):
+            or cells.ndim != 4 or cells.shape[0] != int(meta[META_NX]) or cells.shape[1] != int(meta[META_NY])):
         raise InputError("the parameter set has no valid UT→SciFi table (eqs. 21–23): run `pkf tune`")
 
 

@@ -56,7 +56,7 @@ def _node_states(tr, lay, nodes, start, q_lo, q_hi, node_dw):
     s0 = start.s0
     qn = nodes.q
     n_ut = lay.n_ut
-    localize_ut_to_scifi(ext.uts_meta, ext.uts_coef, s0[0], s0[1], tr.poly, tr.table_ref)
+    localize_ut_to_scifi(ext.uts_meta, ext.uts_cells, s0[0], s0[1], tr.poly, tr.table_ref)
     n_nodes = int(math.ceil((q_hi - q_lo) / node_dw)) + 1
     n_nodes = min(max(n_nodes, 2), qn.shape[0])
     for k in range(n_nodes):
