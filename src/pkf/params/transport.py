@@ -209,12 +209,13 @@ def add_crossed_velo_layers(layer_z, layer_area, pn, state, cur, nxt, jac, noise
     plane scattering θ² (eq. 11 at Δz = 0: (p̃0·q/p)²·N³·(1 + t²) + p̃4²) at z_l; written as
     the equivalent kick at z_cur (δt = θ, δx = −(z_l − z_cur)·θ) and carried by the step's
     Jacobian: noise += J·Q_cur·Jᵀ — exact for the straight VELO track between z_cur and z_l.
-    q_start, tmp, out: 5×5 scratch. Inlined and without reference counts (it runs on the
-    ~60 % of VELO steps that skip a layer, mostly one of the other half): as a call, its 11
-    arrays passed by value and the counted view of each crossed layer's area cost the
-    parametrized forward filter ×1.02 (fit_core's minimum-bias tracks, step + covariance
-    transport + update, both orders of compilation against an A/B of identical code:
-    ×0.966 and ×0.991 with it inlined; same numbers)."""
+    q_start, tmp, out: 5×5 scratch. Inlined and without reference counts: it runs on the 57 %
+    of minimum-bias VELO steps that skip a layer (mostly one of the other half), where as a
+    call its 11 arrays went by value and each crossed layer's area view was counted.
+    Measured on benchmarks/fit_core.py's minimum-bias tracks (the parametrized forward
+    filter: step, covariance transport, update; CPU, old and new code alternating in one
+    process, each compilation order divided by an A/B of identical code): ×0.966 and ×0.991
+    inlined, the same numbers."""
     z0 = layer_z[cur]
     x0 = state[0]
     y0 = state[1]
