@@ -2,23 +2,17 @@
 node-to-node step once, and its table / RK4-fallback split of the UT→SciFi steps is the one
 the extrapolator makes (the table's status for each state, without the fallback)."""
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "parametrized_steps.py"
+from bench_helpers import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(BENCH.parent))
-    spec = importlib.util.spec_from_file_location("parametrized_steps", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("parametrized_steps")
 
 
 def test_step_groups_partition_the_steps_and_split_the_table_as_the_extrapolator(bench):

@@ -2,23 +2,17 @@
 on telescope tracks: the weighted mean agrees with it to rounding, RTS loses digits at the
 first node (the diffuse seed), and a wrong reference would show in both."""
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "smoother_precision.py"
+from bench_helpers import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(BENCH.parent))
-    spec = importlib.util.spec_from_file_location("smoother_precision", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("smoother_precision")
 
 
 def test_weighted_mean_matches_the_50_digit_fit_and_rts_loses_digits_at_node_0(bench):

@@ -2,27 +2,21 @@
 the conversion of ACTS's fitted parameters to pkf's state, pkf's Bethe–Heitler
 mixture in ACTS's JSON format, and the timing rule (the same CPU budget on both sides)."""
 
-import importlib.util
 import json
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from bench_helpers import load_benchmark
 from scipy.special import expit, ndtr
 
 from pkf.params.bethe_heitler import Z_GRID, load_bethe_heitler_mixture
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "vs_acts.py"
-
 
 @pytest.fixture(scope="module")
 def vs_acts():
-    spec = importlib.util.spec_from_file_location("vs_acts", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("vs_acts")
 
 
 def _pkf_state(bound):

@@ -1,0 +1,18 @@
+"""Loading a script of `benchmarks/` as a module, for the tests of its pieces."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def load_benchmark(name: str):
+    """`benchmarks/<name>.py` as a module (the directory on sys.path first, for the helpers
+    it imports, such as `fit_compare`)."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(BENCHMARKS))
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
