@@ -16,3 +16,14 @@ def load_benchmark(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def truth_sample_class():
+    """`tests/fit/fit_helpers.TruthSample` (that directory on sys.path first), for the tests
+    that run a benchmark's pieces on simulated tracks."""
+    fit_tests = str(Path(__file__).resolve().parent / "fit")
+    if fit_tests not in sys.path:
+        sys.path.insert(0, fit_tests)
+    from fit_helpers import TruthSample
+
+    return TruthSample

@@ -2,12 +2,10 @@
 node-to-node step once, and its table / RK4-fallback split of the UT→SciFi steps is the one
 the extrapolator makes (the table's status for each state, without the fallback)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from bench_helpers import load_benchmark
+from bench_helpers import load_benchmark, truth_sample_class
 
 
 @pytest.fixture(scope="module")
@@ -16,16 +14,13 @@ def bench():
 
 
 def test_step_groups_partition_the_steps_and_split_the_table_as_the_extrapolator(bench):
-    sys.path.insert(0, str(Path(__file__).resolve().parent / "fit"))
-    from fit_helpers import TruthSample
-
     from pkf.geometry import load_geometry
     from pkf.params.parameter_set import shipped_parameters
     from pkf.params.ut_to_scifi import STATUS_BELOW_P_MIN, ut_to_scifi_extrapolate
 
     geometry = load_geometry("lhcb-like")
     # 1.2–4 GeV pions: UT→SciFi steps on both sides of the table's p_low (1.5 GeV)
-    sample = TruthSample(geometry, events=20, seed=5, particles=10, p_min=1200.0, p_max=4000.0, eta_min=2.0,
+    sample = truth_sample_class()(geometry, events=20, seed=5, particles=10, p_min=1200.0, p_max=4000.0, eta_min=2.0,
                          eta_max=4.5)
     batch, params = sample.batch, shipped_parameters(geometry)
     ext = params.extrapolator(geometry)

@@ -2,12 +2,10 @@
 on telescope tracks: the weighted mean agrees with it to rounding, RTS loses digits at the
 first node (the diffuse seed), and a wrong reference would show in both."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from bench_helpers import load_benchmark
+from bench_helpers import load_benchmark, truth_sample_class
 
 
 @pytest.fixture(scope="module")
@@ -16,16 +14,13 @@ def bench():
 
 
 def test_weighted_mean_matches_the_50_digit_fit_and_rts_loses_digits_at_node_0(bench):
-    sys.path.insert(0, str(Path(__file__).resolve().parent / "fit"))
-    from fit_helpers import TruthSample
-
     from pkf.fit.driver import max_nodes
     from pkf.fit.kalman import SMOOTHER_RTS, SMOOTHER_WEIGHTED_MEAN, kalman_fitter
     from pkf.geometry import load_geometry
     from pkf.params.parameter_set import shipped_parameters
 
     geometry = load_geometry("telescope")
-    sample = TruthSample(geometry, events=2, seed=3, particles=5, p_min=1000.0, p_max=50000.0, eta_min=2.0, eta_max=4.0)
+    sample = truth_sample_class()(geometry, events=2, seed=3, particles=5, p_min=1000.0, p_max=50000.0, eta_min=2.0, eta_max=4.0)
     batch = sample.batch
     ext = shipped_parameters(geometry).extrapolator(geometry)
     fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1)
