@@ -174,6 +174,57 @@ def map_at_cell_z(params, grid, x, y, z_ok, iz, uz):
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def map_field_and_gradient(params, grid, x, y, z):
+    """`_map_at` and its exact x and y derivatives (of the trilinear interpolation) from the same
+    8 grid points: (bx, by, bz, ∂bx/∂x, ∂by/∂x, ∂bz/∂x, ∂bx/∂y, ∂by/∂y, ∂bz/∂y) [T, T/mm];
+    0 derivative across an edge of the grid (the edge value is held there)."""
+    z_ok, iz, uz = map_cell_z(params, grid, z)
+    good = math.isfinite(x) and math.isfinite(y) and z_ok
+    rx = (x - params[_MAP_X0]) / params[_MAP_DX] if good else 0.0
+    ry = (y - params[_MAP_Y0]) / params[_MAP_DY] if good else 0.0
+    nx = grid.shape[0]
+    ny = grid.shape[1]
+    fx = min(max(rx, 0.0), nx - 1.0)
+    fy = min(max(ry, 0.0), ny - 1.0)
+    sx = 1.0 / params[_MAP_DX] if fx == rx else 0.0
+    sy = 1.0 / params[_MAP_DY] if fy == ry else 0.0
+    ix = min(int(fx), nx - 2)
+    iy = min(int(fy), ny - 2)
+    ux = fx - ix
+    uy = fy - iy
+    b0 = b1 = b2 = 0.0
+    gx0 = gx1 = gx2 = 0.0
+    gy0 = gy1 = gy2 = 0.0
+    for cx in range(2):
+        wx = ux if cx == 1 else 1.0 - ux
+        dx = sx if cx == 1 else -sx
+        for cy in range(2):
+            wy = uy if cy == 1 else 1.0 - uy
+            dy = sy if cy == 1 else -sy
+            for cz in range(2):
+                wz = uz if cz == 1 else 1.0 - uz
+                v0 = grid[ix + cx, iy + cy, iz + cz, 0]
+                v1 = grid[ix + cx, iy + cy, iz + cz, 1]
+                v2 = grid[ix + cx, iy + cy, iz + cz, 2]
+                w = wx * wy * wz
+                wgx = dx * wy * wz
+                wgy = wx * dy * wz
+                b0 += w * v0
+                b1 += w * v1
+                b2 += w * v2
+                gx0 += wgx * v0
+                gx1 += wgx * v1
+                gx2 += wgx * v2
+                gy0 += wgy * v0
+                gy1 += wgy * v1
+                gy2 += wgy * v2
+    if not good:
+        nan = math.nan
+        return nan, nan, nan, nan, nan, nan, nan, nan, nan
+    return b0, b1, b2, gx0, gx1, gx2, gy0, gy1, gy2
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _map_at(params, grid, x, y, z):
     """Trilinear interpolation of the sampled field; outside the grid the edge value;
     NaN for a non-finite position (never an out-of-range memory read)."""

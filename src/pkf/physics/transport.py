@@ -16,16 +16,26 @@ speed of light in units of 1e9 m/s, not 1e-3 of it.
 Integration is classical fixed-step RK4 with |Δz| split into ceil(|Δz|/max_step) equal
 steps, forwards or backwards. qop is constant (no material inside a step). The
 Jacobian is the exact derivative of that discrete RK4 map (forward-mode: each stage's
-derivative is chained through the stage), except that the field gradients ∂B/∂x and
-∂B/∂y are central differences of `field_at` with a step of FIELD_GRADIENT_STEP = 1 µm
-(z is the integration variable, so ∂B/∂z is not needed). A step this small gives, for
-the trilinear field map, the exact piecewise-linear derivative of the interpolation
-(except within 1 µm of a cell boundary, where it is the mean of the two one-sided
-slopes), and for the analytic dipole the derivative to ~1e-9 relative (truncation
-∝ step², rounding ~1e-16 T/step). A 0.5 mm step would smooth across map cell
-boundaries and disagree with finite differences of the map transport at the 1e-3 level
-in the small ∂(tx, ty)/∂(x, y) elements. For a uniform field the gradient is zero and
-not evaluated.
+derivative is chained through the stage), with the field gradients ∂B/∂x and ∂B/∂y
+(z is the integration variable, so ∂B/∂z is not needed): for the trilinear field map the
+exact derivative of the interpolation, from the same 8 grid points as the field
+(`pkf.geometry.field.map_field_and_gradient`; at a cell boundary the slope of the cell the
+point is in); for the analytic dipole central differences of `field_at` with a step of
+FIELD_GRADIENT_STEP = 1 µm (~1e-9 relative: truncation ∝ step², rounding ~1e-16 T/step);
+for a uniform field zero, not evaluated. The map's gradient was central differences too
+(4 more lookups per RK4 stage): they gave the same derivative within 1e-9 but within 1 µm of
+a cell boundary (4.5e-5 of random points), where they gave the mean of the two one-sided
+slopes. Issue 18.1, measured (benchmarks/fit_core.py --sample minbias, 257,055 nodes, the old
+and new code alternating in separate processes, 2 rounds): the reference fit 3,122–3,134 →
+1,961–1,964 ns/node (×0.63), the GX2F 3,054–3,128 → 1,994–2,030 (×0.65), the parametrized
+fit unchanged (its RK4 fallback below the UT→SciFi table's p_min: 102 of 8,246 steps); the GSF
+(`gsf_components` electrons, 3 rounds) 2.61–2.62 → 2.51–2.69 ms per track. Outputs
+(benchmarks/table_hashes.py --against): candidates bitwise the same; χ² within 1e-6
+relative, states within 3.3e-4 and pulls within 7e-5 of each column's RMS (a derivative
+that differs by the jump of the slope across a cell boundary, where a lookup falls within
+1 µm of one; elsewhere the two agree within 1e-9). A 0.5 mm
+difference step would have smoothed across cell boundaries and disagreed with finite
+differences of the map transport at the 1e-3 level in the small ∂(tx, ty)/∂(x, y) elements.
 """
 
 from __future__ import annotations
@@ -35,11 +45,11 @@ import math
 import numba as nb
 import numpy as np
 
-from pkf.geometry.field import FIELD_UNIFORM, field_at, map_at_cell_z, map_cell_z
+from pkf.geometry.field import FIELD_MAP, FIELD_UNIFORM, field_at, map_at_cell_z, map_cell_z, map_field_and_gradient
 from pkf.jit import NO_REFCOUNT
 
 C_LIGHT = 0.299792458  # κ, MeV/(T·mm): curvature [1/mm] = κ·B[T]/p[MeV]
-FIELD_GRADIENT_STEP = 1e-3  # mm, central-difference step for ∂B/∂x and ∂B/∂y
+FIELD_GRADIENT_STEP = 1e-3  # mm, central-difference step for the dipole's ∂B/∂x and ∂B/∂y
 
 
 @nb.njit(cache=True)
@@ -174,7 +184,10 @@ def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid):
     Returns (dtx/dz, dty/dz, row_tx, row_ty) with row_tx = ∂(dtx/dz)/∂(x, y, tx, ty, qop)
     and row_ty = ∂(dty/dz)/∂(x, y, tx, ty, qop) (5-tuples: no scratch array).
     """
-    bx, by, bz = field_at(field_kind, field_params, field_grid, x, y, z)
+    if field_kind == FIELD_MAP:
+        bx, by, bz, gxx, gxy, gxz, gyx, gyy, gyz = map_field_and_gradient(field_params, field_grid, x, y, z)
+    else:
+        bx, by, bz = field_at(field_kind, field_params, field_grid, x, y, z)
     n = math.sqrt(1.0 + tx * tx + ty * ty)
     ax = tx * ty * bx - (1.0 + tx * tx) * by + ty * bz
     ay = (1.0 + ty * ty) * bx - tx * ty * by - tx * bz
@@ -194,8 +207,13 @@ def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid):
     # ∂/∂qop
     j04 = C_LIGHT * n * ax
     j14 = C_LIGHT * n * ay
-    # ∂/∂x, ∂/∂y through the field gradient (central differences)
-    if field_kind == FIELD_UNIFORM:
+    # ∂/∂x, ∂/∂y through the field gradient (the map's exact one; the dipole's by central differences)
+    if field_kind == FIELD_MAP:
+        j00 = kqn * (tx * ty * gxx - (1.0 + tx * tx) * gxy + ty * gxz)
+        j10 = kqn * ((1.0 + ty * ty) * gxx - tx * ty * gxy - tx * gxz)
+        j01 = kqn * (tx * ty * gyx - (1.0 + tx * tx) * gyy + ty * gyz)
+        j11 = kqn * ((1.0 + ty * ty) * gyx - tx * ty * gyy - tx * gyz)
+    elif field_kind == FIELD_UNIFORM:
         j00 = 0.0
         j01 = 0.0
         j10 = 0.0
