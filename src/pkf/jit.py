@@ -32,7 +32,7 @@ from numba.core import options as _numba_options
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
 
-__all__ = ["NO_REFCOUNT", "prefetch_write", "stack_array"]
+__all__ = ["NO_REFCOUNT", "fma", "prefetch_write", "stack_array"]
 
 #: keyword arguments of ``numba.njit`` for non-allocating kernels (empty if unsupported)
 NO_REFCOUNT: dict = {"_nrt": False} if hasattr(getattr(_numba_options, "DefaultOptions", None), "_nrt") else {}
@@ -67,6 +67,29 @@ def stack_array(typingctx, shape):
         return array._getvalue()
 
     return array_type(shape), codegen
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """a·b + c rounded once (IEEE 754 fusedMultiplyAdd, LLVM's ``llvm.fma.f64``: one FMA
+    instruction on x86-64 with FMA3, a correctly rounded library call without it), float64.
+
+    The fit kernels write their multiply–adds with it where the fused form is faster
+    (issue 18.1). Unlike numba's ``fastmath={"contract"}``, which lets LLVM decide per
+    optimised module which a·b + c it fuses — so code loaded from numba's cache and the same
+    code compiled in the process gave different last bits (the Dask and resumed-run tests:
+    tables of two processes not identical) — an explicit fma is one rounding wherever it is
+    compiled or inlined, and every other operation keeps its own IEEE rounding: results are
+    determined by the source."""
+    if not all(isinstance(t, (types.Float, types.Integer)) for t in (a, b, c)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        double = types.float64
+        x, y, z = (context.cast(builder, v, t, double) for v, t in zip(args, signature.args))
+        return builder.fma(x, y, z)
+
+    return types.float64(a, b, c), codegen
 
 
 def _prefetch_codegen(write: int):

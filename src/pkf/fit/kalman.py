@@ -153,7 +153,7 @@ from pkf.physics.linalg import (
     zero55,
 )
 from pkf.fit.status import STATUS_NOT_POSITIVE_DEFINITE, STATUS_OK
-from pkf.jit import NO_REFCOUNT, prefetch_write_rows, stack_array
+from pkf.jit import NO_REFCOUNT, fma, prefetch_write_rows, stack_array
 
 SMOOTHER_WEIGHTED_MEAN = 0
 SMOOTHER_RTS = 1
@@ -221,19 +221,19 @@ def _solve_general(a, b, v):
         for r in range(c + 1, 5):
             f = a[r, c] * inv_p
             for j in range(c + 1, 5):
-                a[r, j] -= f * a[c, j]
+                a[r, j] = fma(-f, a[c, j], a[r, j])
             for j in range(5):
-                b[r, j] -= f * b[c, j]
-            v[r] -= f * v[c]
+                b[r, j] = fma(-f, b[c, j], b[r, j])
+            v[r] = fma(-f, v[c], v[r])
     for i in range(4, -1, -1):
         for j in range(5):
             t = b[i, j]
             for k in range(i + 1, 5):
-                t -= a[i, k] * b[k, j]
+                t = fma(-a[i, k], b[k, j], t)
             b[i, j] = t * a[i, i]
         t = v[i]
         for k in range(i + 1, 5):
-            t -= a[i, k] * v[k]
+            t = fma(-a[i, k], v[k], t)
         v[i] = t * a[i, i]
     return True
 
@@ -246,22 +246,28 @@ def scalar_update(x, p, hx, hy, m, var):
     if P is not positive definite along h. Every fitter's measurement update. One
     division (1/S, then products) instead of 21; the results differ from those of the
     divisions by rounding only."""
-    r = m - (hx * x[0] + hy * x[1])
+    r = m - fma(hy, x[1], hx * x[0])
     # P·h only involves the first two columns
     s = var
-    ph0 = hx * p[0, 0] + hy * p[0, 1]
-    ph1 = hx * p[1, 0] + hy * p[1, 1]
-    s += hx * ph0 + hy * ph1
+    ph0 = fma(hy, p[0, 1], hx * p[0, 0])
+    ph1 = fma(hy, p[1, 1], hx * p[1, 0])
+    s += fma(hy, ph1, hx * ph0)
     if not s > 0.0:
         return 0.0, s
-    ph = (ph0, ph1, hx * p[2, 0] + hy * p[2, 1], hx * p[3, 0] + hy * p[3, 1], hx * p[4, 0] + hy * p[4, 1])
+    ph = (
+        ph0,
+        ph1,
+        fma(hy, p[2, 1], hx * p[2, 0]),
+        fma(hy, p[3, 1], hx * p[3, 0]),
+        fma(hy, p[4, 1], hx * p[4, 0]),
+    )
     inv_s = 1.0 / s  # one division, not 21: the gain K = P·h/S, then P −= K·(P·h)ᵀ
     for i in range(5):
-        x[i] += ph[i] * inv_s * r
+        x[i] = fma(ph[i] * inv_s, r, x[i])
     for i in range(5):
         k = ph[i] * inv_s
         for j in range(i, 5):
-            v = p[i, j] - k * ph[j]
+            v = fma(-k, ph[j], p[i, j])
             p[i, j] = v
             p[j, i] = v
     return r * r * inv_s, s
@@ -276,13 +282,13 @@ def add_node_information(info, info_vec, n_meas, hx, hy, m, sigma, state):
         w = 1.0 / (sigma[j] * sigma[j])
         h0 = hx[j]
         h1 = hy[j]
-        r = m[j] - (h0 * state[0] + h1 * state[1])
-        info[0, 0] += h0 * h0 * w
-        info[0, 1] += h0 * h1 * w
-        info[1, 0] += h0 * h1 * w
-        info[1, 1] += h1 * h1 * w
-        info_vec[0] += h0 * r * w
-        info_vec[1] += h1 * r * w
+        r = m[j] - fma(h1, state[1], h0 * state[0])
+        info[0, 0] = fma(h0 * h0, w, info[0, 0])
+        info[0, 1] = fma(h0 * h1, w, info[0, 1])
+        info[1, 0] = fma(h0 * h1, w, info[1, 0])
+        info[1, 1] = fma(h1 * h1, w, info[1, 1])
+        info_vec[0] = fma(h0 * r, w, info_vec[0])
+        info_vec[1] = fma(h1 * r, w, info_vec[1])
 
 
 @nb.njit(cache=True, inline="always")
@@ -367,7 +373,7 @@ def _fit_once(
                 for i in range(5):
                     s = 0.0
                     for j in range(5):
-                        s += jac[k, i, j] * (state[j] - lin[j])
+                        s = fma(jac[k, i, j], state[j] - lin[j], s)
                     pred[k, i] += s
             transport_cov(jac[k], cov, tmp, cov)
             for i in range(5):
@@ -483,7 +489,7 @@ def _backward_information_filter(
         for i in range(5):
             s = info_vec[i]
             for j in range(5):
-                s -= info[i, j] * shift[j]
+                s = fma(-info[i, j], shift[j], s)
             info_vec[i] = s
         copy55(info, tmp)
         if not solve5(a, tmp, info_vec):  # M·Y, M·(y − Y·a) (`_solve_general` written out)
@@ -566,7 +572,7 @@ def _combine_nodes(lo, hi, x_p, p, info, info_vec, out_state, out_cov):
             for i in range(5):  # x = x_p + C·y (`add_matvec5`); diag(C) > 0
                 s = x_blk[i, l]
                 for k in range(5):
-                    s += c_lanes[i, k, l] * v_blk[k, l]
+                    s = fma(c_lanes[i, k, l], v_blk[k, l], s)
                 x_lanes[i, l] = s
                 bad = bad if c_lanes[i, i, l] > 0.0 else 1.0
             bad_diag[l] = bad
@@ -604,7 +610,7 @@ def _rts_smoother(n, pred, pred_cov, filt, filt_cov, jac, out_state, out_cov, ma
             for j in range(5):
                 s = 0.0
                 for l in range(5):
-                    s += filt_cov[k, i, l] * jac[k + 1, j, l]
+                    s = fma(filt_cov[k, i, l], jac[k + 1, j, l], s)
                 tmp[i, j] = s
         matmul55(tmp, inv, gain)
         for i in range(5):

@@ -14,10 +14,10 @@ lane scratch, track-major, as it writes them); the backward filter gathers node 
 lanes onto the stack (`_gather_node`).
 
 Every lane performs the floating-point operations of the scalar core in the same order
-(numba does not contract to FMA without fastmath), with dense products where the scalar
-core leaves out exact zeros (`matmul_noise`, `transport_info`: bitwise the same for
-finite inputs, hence only tracks with a finite seed and seed covariance take the
-lanes): states, covariances, χ², node χ², active flags, status, ndf are bitwise those
+(the multiply–adds are `pkf.jit.fma`, one rounding, on both sides), with dense products
+where the scalar core leaves out exact zeros (`matmul_noise`, `transport_info`: bitwise
+the same for finite inputs, hence only tracks with a finite seed and seed covariance
+take the lanes): states, covariances, χ², node χ², active flags, status, ndf are bitwise those
 of the scalar loop `pkf.fit.driver.fit_tracks_no_refcount` (tests/fit/
 test_kalman_lanes.py: telescope tracks of unequal lengths, failing and NaN seeds; and,
 checked by hashing every output, the 8,907 minimum-bias long tracks of
@@ -94,7 +94,7 @@ from pkf.fit.driver import (
 from pkf.fit.kalman import SMOOTHER_DEFERRED, SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, KalmanFitter, _fit_once
 from pkf.fit.status import STATUS_OK
 from pkf.io.row_order import insertion_sort
-from pkf.jit import NO_REFCOUNT, prefetch_write_rows, stack_array
+from pkf.jit import NO_REFCOUNT, fma, prefetch_write_rows, stack_array
 from pkf.physics.linalg import LANES, copy5, info_step_lane, invert_spd_ldl_lane
 
 #: Tracks fitted together, one per SIMD lane (the lanes of `invert_spd_ldl_lane`).
@@ -227,19 +227,19 @@ def _add_information_lane(info, info_vec, hx, hy, m, sigma, x, do, l):
     w = 1.0 / (sigma[l] * sigma[l])
     h0 = hx[l]
     h1 = hy[l]
-    r = m[l] - (h0 * x[0, l] + h1 * x[1, l])
+    r = m[l] - fma(h1, x[1, l], h0 * x[0, l])
     i00 = info[0, 0, l]
     i01 = info[0, 1, l]
     i10 = info[1, 0, l]
     i11 = info[1, 1, l]
     v0 = info_vec[0, l]
     v1 = info_vec[1, l]
-    info[0, 0, l] = i00 + h0 * h0 * w if d else i00
-    info[0, 1, l] = i01 + h0 * h1 * w if d else i01
-    info[1, 0, l] = i10 + h0 * h1 * w if d else i10
-    info[1, 1, l] = i11 + h1 * h1 * w if d else i11
-    info_vec[0, l] = v0 + h0 * r * w if d else v0
-    info_vec[1, l] = v1 + h1 * r * w if d else v1
+    info[0, 0, l] = fma(h0 * h0, w, i00) if d else i00
+    info[0, 1, l] = fma(h0 * h1, w, i01) if d else i01
+    info[1, 0, l] = fma(h0 * h1, w, i10) if d else i10
+    info[1, 1, l] = fma(h1 * h1, w, i11) if d else i11
+    info_vec[0, l] = fma(h0 * r, w, v0) if d else v0
+    info_vec[1, l] = fma(h1 * r, w, v1) if d else v1
 
 
 @nb.njit(cache=True, inline="always")
@@ -257,7 +257,7 @@ def _combine_lane(p, info, x_p, info_vec, a, c, x, bad_pivot, bad_diag, l):
     for i in range(5):
         s = x_p[i, l]
         for k in range(5):
-            s += c[i, k, l] * info_vec[k, l]
+            s = fma(c[i, k, l], info_vec[k, l], s)
         x[i, l] = s
         bad = bad if c[i, i, l] > 0.0 else 1.0
     bad_diag[l] = bad

@@ -64,6 +64,8 @@ import math
 import numba as nb
 import numpy as np
 
+from pkf.jit import fma
+
 #: Exponents (a, b, c, d) of the monomials x^a·tx^b·y^c·ty^d [x, y in mm] that complete the
 #: eq. 14 tx kick (coefficient × qop·Δz) to every symmetry-allowed monomial of degree ≤ 4
 #: (a+b and c+d even); the ones p0, p2, p6, p7, p9, p11, p13 already hold are left out.
@@ -132,9 +134,28 @@ def _powers(v):
 
 
 @nb.njit(cache=True, inline="always")
+def _add_monomial(acc, c, f0, e0, f1, e1, f2, e2, f3, e3):
+    """acc + c·f0·f1·f2·f3 for factors f_i = v_i^e_i (f_i = 1.0 where e_i = 0) as the
+    unrolled sums form it: the product from the left up to the last factor of non-zero
+    exponent, fused with it (`pkf.jit.fma`: c·f0·f1·f2 then fma(·, f3, acc) if e3 > 0, …);
+    acc + c if every exponent is 0. The unit factors are exact, so this is the unrolled
+    code's arithmetic, which leaves them out."""
+    if e3 > 0:
+        return fma(c * f0 * f1 * f2, f3, acc)
+    if e2 > 0:
+        return fma(c * f0 * f1, f2, acc)
+    if e1 > 0:
+        return fma(c * f0, f1, acc)
+    if e0 > 0:
+        return fma(c, f0, acc)
+    return acc + c
+
+
+@nb.njit(cache=True, inline="always")
 def _monomial_sum(p, offset, exponents, px, ptx, py, pty):
     """Σ_i p[offset+i]·x^a·tx^b·y^c·ty^d over the rows (a, b, c, d) of `exponents` present
-    in `p`, and its derivatives by x, y, tx, ty. px… are the powers 0…4 (`_powers`)."""
+    in `p`, and its derivatives by x, y, tx, ty. px… are the powers 0…4 (`_powers`). Each
+    term is added by `_add_monomial`: one fused multiply–add with its last factor."""
     val = 0.0
     d_x = 0.0
     d_y = 0.0
@@ -153,15 +174,15 @@ def _monomial_sum(p, offset, exponents, px, ptx, py, pty):
         ftx = ptx[b]
         fy = py[e]
         fty = pty[d]
-        val += c * fx * ftx * fy * fty
+        val = _add_monomial(val, c, fx, a, ftx, b, fy, e, fty, d)
         if a > 0:
-            d_x += c * a * px[a - 1] * ftx * fy * fty
+            d_x = _add_monomial(d_x, c * a, px[a - 1], a - 1, ftx, b, fy, e, fty, d)
         if b > 0:
-            d_tx += c * b * fx * ptx[b - 1] * fy * fty
+            d_tx = _add_monomial(d_tx, c * b, fx, a, ptx[b - 1], b - 1, fy, e, fty, d)
         if e > 0:
-            d_y += c * e * fx * ftx * py[e - 1] * fty
+            d_y = _add_monomial(d_y, c * e, fx, a, ftx, b, py[e - 1], e - 1, fty, d)
         if d > 0:
-            d_ty += c * d * fx * ftx * fy * pty[d - 1]
+            d_ty = _add_monomial(d_ty, c * d, fx, a, ftx, b, fy, e, pty[d - 1], d - 1)
     return val, d_x, d_y, d_tx, d_ty
 
 
@@ -181,83 +202,83 @@ def _tx_monomials(p, px, ptx, py, pty):
     d_y = 0.0
     d_ty = 0.0
     c = p[o + 0]  # x^1 tx^1
-    val += c * x * tx
-    d_x += c * tx
-    d_tx += c * x
+    val = fma(c * x, tx, val)
+    d_x = fma(c, tx, d_x)
+    d_tx = fma(c, x, d_tx)
     c = p[o + 1]  # x^4
-    val += c * x4
-    d_x += 4.0 * c * x3
+    val = fma(c, x4, val)
+    d_x = fma(4.0 * c, x3, d_x)
     c = p[o + 2]  # x^3 tx^1
-    val += c * x3 * tx
-    d_x += 3.0 * c * x2 * tx
-    d_tx += c * x3
+    val = fma(c * x3, tx, val)
+    d_x = fma(3.0 * c * x2, tx, d_x)
+    d_tx = fma(c, x3, d_tx)
     c = p[o + 3]  # x^2 tx^2
-    val += c * x2 * tx2
-    d_x += 2.0 * c * x * tx2
-    d_tx += 2.0 * c * x2 * tx
+    val = fma(c * x2, tx2, val)
+    d_x = fma(2.0 * c * x, tx2, d_x)
+    d_tx = fma(2.0 * c * x2, tx, d_tx)
     c = p[o + 4]  # x^1 tx^3
-    val += c * x * tx3
-    d_x += c * tx3
-    d_tx += 3.0 * c * x * tx2
+    val = fma(c * x, tx3, val)
+    d_x = fma(c, tx3, d_x)
+    d_tx = fma(3.0 * c * x, tx2, d_tx)
     c = p[o + 5]  # tx^4
-    val += c * tx4
-    d_tx += 4.0 * c * tx3
+    val = fma(c, tx4, val)
+    d_tx = fma(4.0 * c, tx3, d_tx)
     c = p[o + 6]  # y^4
-    val += c * y4
-    d_y += 4.0 * c * y3
+    val = fma(c, y4, val)
+    d_y = fma(4.0 * c, y3, d_y)
     c = p[o + 7]  # y^2 ty^2
-    val += c * y2 * ty2
-    d_y += 2.0 * c * y * ty2
-    d_ty += 2.0 * c * y2 * ty
+    val = fma(c * y2, ty2, val)
+    d_y = fma(2.0 * c * y, ty2, d_y)
+    d_ty = fma(2.0 * c * y2, ty, d_ty)
     c = p[o + 8]  # y^1 ty^3
-    val += c * y * ty3
-    d_y += c * ty3
-    d_ty += 3.0 * c * y * ty2
+    val = fma(c * y, ty3, val)
+    d_y = fma(c, ty3, d_y)
+    d_ty = fma(3.0 * c * y, ty2, d_ty)
     c = p[o + 9]  # ty^4
-    val += c * ty4
-    d_ty += 4.0 * c * ty3
+    val = fma(c, ty4, val)
+    d_ty = fma(4.0 * c, ty3, d_ty)
     c = p[o + 10]  # x^2 y^2
-    val += c * x2 * y2
-    d_x += 2.0 * c * x * y2
-    d_y += 2.0 * c * x2 * y
+    val = fma(c * x2, y2, val)
+    d_x = fma(2.0 * c * x, y2, d_x)
+    d_y = fma(2.0 * c * x2, y, d_y)
     c = p[o + 11]  # x^2 y^1 ty^1
-    val += c * x2 * y * ty
-    d_x += 2.0 * c * x * y * ty
-    d_y += c * x2 * ty
-    d_ty += c * x2 * y
+    val = fma(c * x2 * y, ty, val)
+    d_x = fma(2.0 * c * x * y, ty, d_x)
+    d_y = fma(c * x2, ty, d_y)
+    d_ty = fma(c * x2, y, d_ty)
     c = p[o + 12]  # x^2 ty^2
-    val += c * x2 * ty2
-    d_x += 2.0 * c * x * ty2
-    d_ty += 2.0 * c * x2 * ty
+    val = fma(c * x2, ty2, val)
+    d_x = fma(2.0 * c * x, ty2, d_x)
+    d_ty = fma(2.0 * c * x2, ty, d_ty)
     c = p[o + 13]  # x^1 tx^1 y^2
-    val += c * x * tx * y2
-    d_x += c * tx * y2
-    d_tx += c * x * y2
-    d_y += 2.0 * c * x * tx * y
+    val = fma(c * x * tx, y2, val)
+    d_x = fma(c * tx, y2, d_x)
+    d_tx = fma(c * x, y2, d_tx)
+    d_y = fma(2.0 * c * x * tx, y, d_y)
     c = p[o + 14]  # x^1 tx^1 y^1 ty^1
-    val += c * x * tx * y * ty
-    d_x += c * tx * y * ty
-    d_tx += c * x * y * ty
-    d_y += c * x * tx * ty
-    d_ty += c * x * tx * y
+    val = fma(c * x * tx * y, ty, val)
+    d_x = fma(c * tx * y, ty, d_x)
+    d_tx = fma(c * x * y, ty, d_tx)
+    d_y = fma(c * x * tx, ty, d_y)
+    d_ty = fma(c * x * tx, y, d_ty)
     c = p[o + 15]  # x^1 tx^1 ty^2
-    val += c * x * tx * ty2
-    d_x += c * tx * ty2
-    d_tx += c * x * ty2
-    d_ty += 2.0 * c * x * tx * ty
+    val = fma(c * x * tx, ty2, val)
+    d_x = fma(c * tx, ty2, d_x)
+    d_tx = fma(c * x, ty2, d_tx)
+    d_ty = fma(2.0 * c * x * tx, ty, d_ty)
     c = p[o + 16]  # tx^2 y^2
-    val += c * tx2 * y2
-    d_tx += 2.0 * c * tx * y2
-    d_y += 2.0 * c * tx2 * y
+    val = fma(c * tx2, y2, val)
+    d_tx = fma(2.0 * c * tx, y2, d_tx)
+    d_y = fma(2.0 * c * tx2, y, d_y)
     c = p[o + 17]  # tx^2 y^1 ty^1
-    val += c * tx2 * y * ty
-    d_tx += 2.0 * c * tx * y * ty
-    d_y += c * tx2 * ty
-    d_ty += c * tx2 * y
+    val = fma(c * tx2 * y, ty, val)
+    d_tx = fma(2.0 * c * tx * y, ty, d_tx)
+    d_y = fma(c * tx2, ty, d_y)
+    d_ty = fma(c * tx2, y, d_ty)
     c = p[o + 18]  # tx^2 ty^2
-    val += c * tx2 * ty2
-    d_tx += 2.0 * c * tx * ty2
-    d_ty += 2.0 * c * tx2 * ty
+    val = fma(c * tx2, ty2, val)
+    d_tx = fma(2.0 * c * tx, ty2, d_tx)
+    d_ty = fma(2.0 * c * tx2, ty, d_ty)
     return val, d_x, d_y, d_tx, d_ty
 
 
@@ -276,77 +297,77 @@ def _ty_monomials(p, px, ptx, py, pty):
     d_y = 0.0
     d_ty = 0.0
     c = p[o + 0]  # x^1 ty^1
-    val += c * x * ty
-    d_x += c * ty
-    d_ty += c * x
+    val = fma(c * x, ty, val)
+    d_x = fma(c, ty, d_x)
+    d_ty = fma(c, x, d_ty)
     c = p[o + 1]  # x^1 y^3
-    val += c * x * y3
-    d_x += c * y3
-    d_y += 3.0 * c * x * y2
+    val = fma(c * x, y3, val)
+    d_x = fma(c, y3, d_x)
+    d_y = fma(3.0 * c * x, y2, d_y)
     c = p[o + 2]  # x^1 y^2 ty^1
-    val += c * x * y2 * ty
-    d_x += c * y2 * ty
-    d_y += 2.0 * c * x * y * ty
-    d_ty += c * x * y2
+    val = fma(c * x * y2, ty, val)
+    d_x = fma(c * y2, ty, d_x)
+    d_y = fma(2.0 * c * x * y, ty, d_y)
+    d_ty = fma(c * x, y2, d_ty)
     c = p[o + 3]  # x^1 y^1 ty^2
-    val += c * x * y * ty2
-    d_x += c * y * ty2
-    d_y += c * x * ty2
-    d_ty += 2.0 * c * x * y * ty
+    val = fma(c * x * y, ty2, val)
+    d_x = fma(c * y, ty2, d_x)
+    d_y = fma(c * x, ty2, d_y)
+    d_ty = fma(2.0 * c * x * y, ty, d_ty)
     c = p[o + 4]  # x^1 ty^3
-    val += c * x * ty3
-    d_x += c * ty3
-    d_ty += 3.0 * c * x * ty2
+    val = fma(c * x, ty3, val)
+    d_x = fma(c, ty3, d_x)
+    d_ty = fma(3.0 * c * x, ty2, d_ty)
     c = p[o + 5]  # tx^1 y^2 ty^1
-    val += c * tx * y2 * ty
-    d_tx += c * y2 * ty
-    d_y += 2.0 * c * tx * y * ty
-    d_ty += c * tx * y2
+    val = fma(c * tx * y2, ty, val)
+    d_tx = fma(c * y2, ty, d_tx)
+    d_y = fma(2.0 * c * tx * y, ty, d_y)
+    d_ty = fma(c * tx, y2, d_ty)
     c = p[o + 6]  # tx^1 y^1 ty^2
-    val += c * tx * y * ty2
-    d_tx += c * y * ty2
-    d_y += c * tx * ty2
-    d_ty += 2.0 * c * tx * y * ty
+    val = fma(c * tx * y, ty2, val)
+    d_tx = fma(c * y, ty2, d_tx)
+    d_y = fma(c * tx, ty2, d_y)
+    d_ty = fma(2.0 * c * tx * y, ty, d_ty)
     c = p[o + 7]  # tx^1 ty^3
-    val += c * tx * ty3
-    d_tx += c * ty3
-    d_ty += 3.0 * c * tx * ty2
+    val = fma(c * tx, ty3, val)
+    d_tx = fma(c, ty3, d_tx)
+    d_ty = fma(3.0 * c * tx, ty2, d_ty)
     c = p[o + 8]  # x^3 y^1
-    val += c * x3 * y
-    d_x += 3.0 * c * x2 * y
-    d_y += c * x3
+    val = fma(c * x3, y, val)
+    d_x = fma(3.0 * c * x2, y, d_x)
+    d_y = fma(c, x3, d_y)
     c = p[o + 9]  # x^2 tx^1 y^1
-    val += c * x2 * tx * y
-    d_x += 2.0 * c * x * tx * y
-    d_tx += c * x2 * y
-    d_y += c * x2 * tx
+    val = fma(c * x2 * tx, y, val)
+    d_x = fma(2.0 * c * x * tx, y, d_x)
+    d_tx = fma(c * x2, y, d_tx)
+    d_y = fma(c * x2, tx, d_y)
     c = p[o + 10]  # x^1 tx^2 y^1
-    val += c * x * tx2 * y
-    d_x += c * tx2 * y
-    d_tx += 2.0 * c * x * tx * y
-    d_y += c * x * tx2
+    val = fma(c * x * tx2, y, val)
+    d_x = fma(c * tx2, y, d_x)
+    d_tx = fma(2.0 * c * x * tx, y, d_tx)
+    d_y = fma(c * x, tx2, d_y)
     c = p[o + 11]  # tx^3 y^1
-    val += c * tx3 * y
-    d_tx += 3.0 * c * tx2 * y
-    d_y += c * tx3
+    val = fma(c * tx3, y, val)
+    d_tx = fma(3.0 * c * tx2, y, d_tx)
+    d_y = fma(c, tx3, d_y)
     c = p[o + 12]  # x^3 ty^1
-    val += c * x3 * ty
-    d_x += 3.0 * c * x2 * ty
-    d_ty += c * x3
+    val = fma(c * x3, ty, val)
+    d_x = fma(3.0 * c * x2, ty, d_x)
+    d_ty = fma(c, x3, d_ty)
     c = p[o + 13]  # x^2 tx^1 ty^1
-    val += c * x2 * tx * ty
-    d_x += 2.0 * c * x * tx * ty
-    d_tx += c * x2 * ty
-    d_ty += c * x2 * tx
+    val = fma(c * x2 * tx, ty, val)
+    d_x = fma(2.0 * c * x * tx, ty, d_x)
+    d_tx = fma(c * x2, ty, d_tx)
+    d_ty = fma(c * x2, tx, d_ty)
     c = p[o + 14]  # x^1 tx^2 ty^1
-    val += c * x * tx2 * ty
-    d_x += c * tx2 * ty
-    d_tx += 2.0 * c * x * tx * ty
-    d_ty += c * x * tx2
+    val = fma(c * x * tx2, ty, val)
+    d_x = fma(c * tx2, ty, d_x)
+    d_tx = fma(2.0 * c * x * tx, ty, d_tx)
+    d_ty = fma(c * x, tx2, d_ty)
     c = p[o + 15]  # tx^3 ty^1
-    val += c * tx3 * ty
-    d_tx += 3.0 * c * tx2 * ty
-    d_ty += c * tx3
+    val = fma(c * tx3, ty, val)
+    d_tx = fma(3.0 * c * tx2, ty, d_tx)
+    d_ty = fma(c, tx3, d_ty)
     return val, d_x, d_y, d_tx, d_ty
 # ---- end of generated code ----
 

@@ -31,8 +31,12 @@ def _power(var: str, e: int) -> str | None:
     return var if e == 1 else f"{var}{e}"
 
 
-def _product(factors: list[str]) -> str:
-    return " * ".join(factors) if factors else "1.0"
+def _accumulate(acc: str, coef: str, factors: list[str]) -> str:
+    """``acc += coef·factors``, the product from the left fused with its last factor
+    (`pkf.jit.fma`, as `formulas._add_monomial`); a plain addition if there is none."""
+    if not factors:
+        return f"{acc} += {coef}"
+    return f"{acc} = fma({' * '.join([coef, *factors[:-1]])}, {factors[-1]}, {acc})"
 
 
 def monomial_sum_source(name: str, offset_name: str, exponents) -> str:
@@ -51,7 +55,7 @@ def monomial_sum_source(name: str, offset_name: str, exponents) -> str:
     for i, row in enumerate(exponents):
         row = [int(e) for e in row]
         lines.append(f"    c = p[o + {i}]  # {' '.join(f'{v}^{e}' for v, e in zip(_VARS, row) if e)}")
-        lines.append(f"    val += c * {_product([f for f in (_power(v, e) for v, e in zip(_VARS, row)) if f])}")
+        lines.append("    " + _accumulate("val", "c", [f for f in (_power(v, e) for v, e in zip(_VARS, row)) if f]))
         for k, dname in enumerate(derivative_names):
             if row[k] == 0:
                 continue
@@ -61,7 +65,7 @@ def monomial_sum_source(name: str, offset_name: str, exponents) -> str:
                 if f:
                     factors.append(f)
             coef = f"{row[k]}.0 * c" if row[k] > 1 else "c"
-            lines.append(f"    {dname} += {coef}" + (f" * {_product(factors)}" if factors else ""))
+            lines.append("    " + _accumulate(dname, coef, factors))
     lines.append("    return val, d_x, d_y, d_tx, d_ty")
     return "\n".join(lines) + "\n"
 

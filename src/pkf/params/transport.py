@@ -36,7 +36,7 @@ import numpy as np
 
 from pkf.geometry.acceptance import in_active_area
 from pkf.geometry.detector import Geometry
-from pkf.jit import NO_REFCOUNT
+from pkf.jit import NO_REFCOUNT, fma
 from pkf.params.formulas import layer_step, parametrized_noise, velo_step, velo_to_ut_step
 from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate
 from pkf.physics.linalg import copy5, copy55, matmul55, search_sorted, set_identity, transport_cov
@@ -178,7 +178,7 @@ def step_noise(pn, state, dz, jac, noise):
         var_qop = (pn[5] * state[4] * state[4]) ** 2
         for i in range(5):
             for j in range(5):
-                noise[i, j] += var_qop * jac[i, 4] * jac[j, 4]
+                noise[i, j] = fma(var_qop * jac[i, 4], jac[j, 4], noise[i, j])
 
 
 def area_record(geometry: Geometry) -> np.ndarray:
@@ -237,10 +237,10 @@ def add_crossed_velo_layers(layer_z, layer_area, pn, state, cur, nxt, jac, noise
         q_ty = tmp[3, 3]
         q_start[2, 2] += q_tx
         q_start[3, 3] += q_ty
-        q_start[0, 0] += lever * lever * q_tx
-        q_start[1, 1] += lever * lever * q_ty
-        q_start[0, 2] -= lever * q_tx
-        q_start[1, 3] -= lever * q_ty
+        q_start[0, 0] = fma(lever * lever, q_tx, q_start[0, 0])
+        q_start[1, 1] = fma(lever * lever, q_ty, q_start[1, 1])
+        q_start[0, 2] = fma(-lever, q_tx, q_start[0, 2])
+        q_start[1, 3] = fma(-lever, q_ty, q_start[1, 3])
     if not crossed:
         return
     q_start[2, 0] = q_start[0, 2]

@@ -56,13 +56,13 @@ def invert_spd_ldl_lane_source() -> str:
     for j in range(5):
         emit(f"d = a[{j}, {j}, l]")
         for k in range(j):
-            emit(f"d -= w{j}{k} * u{k}{j}")
+            emit(f"d = fma(-w{j}{k}, u{k}{j}, d)")
         emit("bad[l] = bad[l] if d > 0.0 else 1.0")
         emit(f"r{j} = 1.0 / d")
         for i in range(j + 1, 5):
             emit(f"t = a[{i}, {j}, l]")
             for k in range(j):
-                emit(f"t -= w{i}{k} * u{k}{j}")
+                emit(f"t = fma(-w{i}{k}, u{k}{j}, t)")
             emit(f"u{j}{i} = t")
             emit(f"w{i}{j} = t * r{j}")
     # L⁻¹ (unit lower), transposed into the upper scalars
@@ -70,14 +70,14 @@ def invert_spd_ldl_lane_source() -> str:
         for i in range(j + 1, 5):
             emit(f"t = -w{i}{j}")
             for k in range(j + 1, i):
-                emit(f"t -= w{i}{k} * u{j}{k}")
+                emit(f"t = fma(-w{i}{k}, u{j}{k}, t)")
             emit(f"u{j}{i} = t")
     # a⁻¹[i, j] = Σ_{k ≥ j} L⁻¹[k, i]·D⁻¹[k]·L⁻¹[k, j]
     for i in range(5):
         for j in range(i, 5):
             emit(f"t = r{j} * " + (f"u{i}{j}" if j > i else "1.0"))
             for k in range(j + 1, 5):
-                emit(f"t += u{i}{k} * r{k} * u{j}{k}")
+                emit(f"t = fma(u{i}{k} * r{k}, u{j}{k}, t)")
             emit(f"out[{i}, {j}, l] = t")
             if i != j:
                 emit(f"out[{j}, {i}, l] = t")
@@ -127,21 +127,21 @@ def solve5_source() -> str:
         for r in range(c + 1, 5):
             emit(f"f = a{r}{c} * a{c}{c}")
             for j in range(c + 1, 5):
-                emit(f"a{r}{j} -= f * a{c}{j}")
+                emit(f"a{r}{j} = fma(-f, a{c}{j}, a{r}{j})")
             for j in range(5):
-                emit(f"b{r}{j} -= f * b{c}{j}")
-            emit(f"v{r} -= f * v{c}")
+                emit(f"b{r}{j} = fma(-f, b{c}{j}, b{r}{j})")
+            emit(f"v{r} = fma(-f, v{c}, v{r})")
     emit("if bad:")
     emit("    return False")
     for i in range(4, -1, -1):
         for j in range(5):
             emit(f"t = b{i}{j}")
             for k in range(i + 1, 5):
-                emit(f"t -= a{i}{k} * b{k}{j}")
+                emit(f"t = fma(-a{i}{k}, b{k}{j}, t)")
             emit(f"b{i}{j} = t * a{i}{i}")
         emit(f"t = v{i}")
         for k in range(i + 1, 5):
-            emit(f"t -= a{i}{k} * v{k}")
+            emit(f"t = fma(-a{i}{k}, v{k}, t)")
         emit(f"v{i} = t * a{i}{i}")
     for i in range(5):
         emit(", ".join(f"b[{i}, {j}]" for j in range(5)) + " = " + ", ".join(f"b{i}{j}" for j in range(5)))
@@ -200,19 +200,19 @@ def _solve_lane_statements() -> list[str]:
         for r in range(c + 1, 5):
             out.append(f"e = a{r}{c} * a{c}{c}")
             for j in range(c + 1, 5):
-                out.append(f"a{r}{j} -= e * a{c}{j}")
+                out.append(f"a{r}{j} = fma(-e, a{c}{j}, a{r}{j})")
             for j in range(5):
-                out.append(f"b{r}{j} -= e * b{c}{j}")
-            out.append(f"v{r} -= e * v{c}")
+                out.append(f"b{r}{j} = fma(-e, b{c}{j}, b{r}{j})")
+            out.append(f"v{r} = fma(-e, v{c}, v{r})")
     for i in range(4, -1, -1):
         for j in range(5):
             out.append(f"t = b{i}{j}")
             for k in range(i + 1, 5):
-                out.append(f"t -= a{i}{k} * b{k}{j}")
+                out.append(f"t = fma(-a{i}{k}, b{k}{j}, t)")
             out.append(f"b{i}{j} = t * a{i}{i}")
         out.append(f"t = v{i}")
         for k in range(i + 1, 5):
-            out.append(f"t -= a{i}{k} * v{k}")
+            out.append(f"t = fma(-a{i}{k}, v{k}, t)")
         out.append(f"v{i} = t * a{i}{i}")
     return out
 
@@ -236,18 +236,18 @@ def info_step_lane_source() -> str:
     for i in range(5):  # shift = F·d
         emit("s = 0.0")
         for k in range(5):
-            emit(f"s += f{i}{k} * d{k}")
+            emit(f"s = fma(f{i}{k}, d{k}, s)")
         emit(f"g{i} = s")
     for i in range(5):  # a = Y·Q + I
         for j in range(5):
             emit("s = 0.0")
             for k in range(5):
-                emit(f"s += y{i}{k} * q{k}{j}")
+                emit(f"s = fma(y{i}{k}, q{k}{j}, s)")
             emit(f"a{i}{j} = s + 1.0" if i == j else f"a{i}{j} = s")
     for i in range(5):  # y − Y·shift
         emit(f"s = w{i}")
         for j in range(5):
-            emit(f"s -= y{i}{j} * g{j}")
+            emit(f"s = fma(-y{i}{j}, g{j}, s)")
         emit(f"v{i} = s")
     for i in range(5):
         for j in range(5):
@@ -260,13 +260,13 @@ def info_step_lane_source() -> str:
         for j in range(5):
             emit("s = 0.0")
             for k in range(5):
-                emit(f"s += b{i}{k} * f{k}{j}")
+                emit(f"s = fma(b{i}{k}, f{k}{j}, s)")
             emit(f"t{i}{j} = s")
     for i in range(5):  # Y = Fᵀ·tmp
         for j in range(5):
             emit("s = 0.0")
             for k in range(5):
-                emit(f"s += f{k}{i} * t{k}{j}")
+                emit(f"s = fma(f{k}{i}, t{k}{j}, s)")
             emit(f"o{i}{j} = s")
     for i in range(5):  # symmetrise
         emit(f"info[{i}, {i}, l] = o{i}{i}")
@@ -277,7 +277,7 @@ def info_step_lane_source() -> str:
     for i in range(5):  # y = Fᵀ·v
         emit("s = 0.0")
         for k in range(5):
-            emit(f"s += f{k}{i} * v{k}")
+            emit(f"s = fma(f{k}{i}, v{k}, s)")
         emit(f"info_vec[{i}, l] = s")
     return "\n".join(lines) + "\n"
 
