@@ -23,7 +23,7 @@ from pkf.fit.reference import ReferenceExtrapolator, reference_extrapolator
 from pkf.fit.status import STATUS_EXTRAPOLATION_FAILED, STATUS_OK
 from pkf.geometry.detector import Geometry
 from pkf.geometry.field import uniform_field
-from pkf.jit import NO_REFCOUNT
+from pkf.jit import NO_REFCOUNT, fma
 from pkf.physics.constants import MASS_PION
 from pkf.physics.linalg import copy5, sandwich, set_identity, zero55
 
@@ -66,21 +66,21 @@ def _straight_transport(actor, ext, z_from, z_to, crossed):
         return STATUS_EXTRAPOLATION_FAILED
     jac = actor.jac
     for j in range(5):
-        jac[0, j] = jac[0, j] + a * jac[2, j]
-        jac[1, j] = jac[1, j] + a * jac[3, j]
+        jac[0, j] = fma(a, jac[2, j], jac[0, j])
+        jac[1, j] = fma(a, jac[3, j], jac[1, j])
     c = actor.noise
     tmp = actor.work[1]
     for j in range(5):  # tmp = S·c
-        tmp[0, j] = c[0, j] + a * c[2, j]
-        tmp[1, j] = c[1, j] + a * c[3, j]
+        tmp[0, j] = fma(a, c[2, j], c[0, j])
+        tmp[1, j] = fma(a, c[3, j], c[1, j])
         for i in range(2, 5):
             tmp[i, j] = c[i, j]
     for i in range(5):  # c = tmp·Sᵀ, upper triangle mirrored
         for j in range(i, 5):
             if j == 0:
-                v = tmp[i, 0] + a * tmp[i, 2]
+                v = fma(a, tmp[i, 2], tmp[i, 0])
             elif j == 1:
-                v = tmp[i, 1] + a * tmp[i, 3]
+                v = fma(a, tmp[i, 3], tmp[i, 1])
             else:
                 v = tmp[i, j]
             c[i, j] = v
