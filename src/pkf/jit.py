@@ -74,13 +74,29 @@ def fma(typingctx, a, b, c):
     """a·b + c rounded once (IEEE 754 fusedMultiplyAdd, LLVM's ``llvm.fma.f64``: one FMA
     instruction on x86-64 with FMA3, a correctly rounded library call without it), float64.
 
-    The fit kernels write their multiply–adds with it where the fused form is faster
-    (issue 18.1). Unlike numba's ``fastmath={"contract"}``, which lets LLVM decide per
-    optimised module which a·b + c it fuses — so code loaded from numba's cache and the same
-    code compiled in the process gave different last bits (the Dask and resumed-run tests:
-    tables of two processes not identical) — an explicit fma is one rounding wherever it is
-    compiled or inlined, and every other operation keeps its own IEEE rounding: results are
-    determined by the source."""
+    The fit's multiply–add chains use it (issue 18.1): `pkf.physics.linalg` (its generated
+    lane kernels too), the Kalman updates, solves and combination of `pkf.fit.kalman` and
+    `pkf.fit.kalman_lanes`, the beamline's straight-line step, the layer steps' monomial sums
+    and the step noise of `pkf.params`. Unlike numba's ``fastmath={"contract"}``, which lets
+    LLVM decide per optimised module which a·b + c it fuses — so code loaded from numba's
+    cache and the same code compiled in the process gave different last bits (branch
+    fma-contract: the Dask and resumed-run tests, tables of two processes not identical) —
+    an explicit fma is one rounding wherever it is compiled or inlined, and every other
+    operation keeps its own IEEE rounding: results are determined by the source
+    (tests/test_jit_fma.py forbids fastmath in the fit's kernels).
+
+    Measured (benchmarks/fit_core.py --sample minbias, 257,055 nodes, old and new code
+    alternating in separate processes, 5 rounds): reference fit 1,932–2,767 → 1,783–2,126
+    ns/node, GX2F 1,992–2,016 → 1,766–1,844 (2 rounds), parametrized 297–303 → 289–303
+    (×0.98, within the noise; likely because an accumulation s = fma(a, b, s) waits for
+    the FMA's latency, 4 cycles per term on this Zen 4, where s += a·b waits 3 for the add:
+    the chains of the parametrized fit gain nothing, the reference's wider products do); GSF-12 unchanged (2.55–2.61 →
+    2.52–2.57 ms per track). Outputs (benchmarks/table_hashes.py --against): candidates
+    bitwise the same, χ² within 4e-10 relative, states and pulls within 6e-9 of each
+    column's RMS; against a 50-digit evaluation (benchmarks/smoother_precision.py, 1,000
+    minimum-bias tracks, median / 99 % / max per node) states 1.9e-11 / 1.5e-9 / 2.9e-7 →
+    1.7e-11 / 1.2e-9 / 4.7e-7 σ, covariances 3.5e-12 / 2.2e-10 / 9.0e-9 → 3.2e-12 /
+    2.0e-10 / 1.2e-8."""
     if not all(isinstance(t, (types.Float, types.Integer)) for t in (a, b, c)):
         return None
 
