@@ -141,22 +141,29 @@ def map_cell_z(params, grid, z):
 
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def map_cell_xy(params, grid, x, y, good):
+    """The x, y part of the map's trilinear interpolation at (x, y) [mm]: (cell indices ix,
+    iy, fractions ux, uy, whether x and y lie inside the grid — not clamped to its edge); for
+    `good` False the first cell (never an out-of-range read)."""
+    rx = (x - params[_MAP_X0]) / params[_MAP_DX] if good else 0.0
+    ry = (y - params[_MAP_Y0]) / params[_MAP_DY] if good else 0.0
+    nx = grid.shape[0]
+    ny = grid.shape[1]
+    fx = min(max(rx, 0.0), nx - 1.0)
+    fy = min(max(ry, 0.0), ny - 1.0)
+    ix = min(int(fx), nx - 2)
+    iy = min(int(fy), ny - 2)
+    return ix, iy, fx - ix, fy - iy, fx == rx, fy == ry
+
+
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def map_at_cell_z(params, grid, x, y, z_ok, iz, uz):
     """Trilinear interpolation of the sampled field at (x, y) [mm] and the z cell of
     `map_cell_z`; outside the grid the edge value; NaN for a non-finite position (the
     grid is then read at the first cell: never an out-of-range read). Without branches,
     so that a loop over several positions has none."""
     good = math.isfinite(x) and math.isfinite(y) and z_ok
-    fx = (x - params[_MAP_X0]) / params[_MAP_DX] if good else 0.0
-    fy = (y - params[_MAP_Y0]) / params[_MAP_DY] if good else 0.0
-    nx = grid.shape[0]
-    ny = grid.shape[1]
-    fx = min(max(fx, 0.0), nx - 1.0)
-    fy = min(max(fy, 0.0), ny - 1.0)
-    ix = min(int(fx), nx - 2)
-    iy = min(int(fy), ny - 2)
-    ux = fx - ix
-    uy = fy - iy
+    ix, iy, ux, uy, _, _ = map_cell_xy(params, grid, x, y, good)
     out0 = 0.0
     out1 = 0.0
     out2 = 0.0
@@ -180,18 +187,9 @@ def map_field_and_gradient(params, grid, x, y, z):
     0 derivative across an edge of the grid (the edge value is held there)."""
     z_ok, iz, uz = map_cell_z(params, grid, z)
     good = math.isfinite(x) and math.isfinite(y) and z_ok
-    rx = (x - params[_MAP_X0]) / params[_MAP_DX] if good else 0.0
-    ry = (y - params[_MAP_Y0]) / params[_MAP_DY] if good else 0.0
-    nx = grid.shape[0]
-    ny = grid.shape[1]
-    fx = min(max(rx, 0.0), nx - 1.0)
-    fy = min(max(ry, 0.0), ny - 1.0)
-    sx = 1.0 / params[_MAP_DX] if fx == rx else 0.0
-    sy = 1.0 / params[_MAP_DY] if fy == ry else 0.0
-    ix = min(int(fx), nx - 2)
-    iy = min(int(fy), ny - 2)
-    ux = fx - ix
-    uy = fy - iy
+    ix, iy, ux, uy, inside_x, inside_y = map_cell_xy(params, grid, x, y, good)
+    sx = 1.0 / params[_MAP_DX] if inside_x else 0.0
+    sy = 1.0 / params[_MAP_DY] if inside_y else 0.0
     b0 = b1 = b2 = 0.0
     gx0 = gx1 = gx2 = 0.0
     gy0 = gy1 = gy2 = 0.0
