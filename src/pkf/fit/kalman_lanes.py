@@ -68,7 +68,12 @@ zeros and ones of F and Q where every lane's step has them (generated like
 `info_step_lane`: VELO steps 123 instead of 460 products around the solve, layer steps
 that keep q/p 315), chosen node by node: minimum bias ×1.002 (VELO steps only) and
 ×0.990 (both; quartiles 0.95–1.05) — the step waits on its chain of pivots, not on its
-products. Next: a forward filter whose F·P·Fᵀ uses the
+products; and (2026-12-06, branch exp) the lanes' rows made by 8×8 transposes in registers
+(shufflevector: 8 vector loads, 24 shuffles) instead of the AVX-512 gathers LLVM makes of
+`_gather_node` (perf put 43 % of this loop's samples on those gathers), with a read
+prefetch of the next node's records and the outputs transposed likewise: bitwise the same,
+fit_core minimum bias 287–290 → 294–312 ns/node (4 rounds, alternating processes) — the
+samples on the gathers were the loop waiting there, not the gathers' own cost. Next: a forward filter whose F·P·Fᵀ uses the
 parametrized steps' structure in lanes (the dense one costs more than the latency it
 hides), or fewer numbers per node to move (F and Q of a parametrized step have ~10
 non-trivial entries each).

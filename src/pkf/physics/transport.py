@@ -177,6 +177,16 @@ def rk4_propagate_map_many(s, n, z_from, z_to, max_step, field_params, field_gri
         z = z + h
 
 
+@nb.njit(cache=True, inline="always")
+def _central_difference(field_kind, field_params, field_grid, x, y, z, sx, sy):
+    """(∂Bx, ∂By, ∂Bz) along (sx, sy, 0) [T/mm] at (x, y, z) by central differences of
+    step (sx, sy) [mm] (one of them 0)."""
+    pbx, pby, pbz = field_at(field_kind, field_params, field_grid, x + sx, y + sy, z)
+    mbx, mby, mbz = field_at(field_kind, field_params, field_grid, x - sx, y - sy, z)
+    inv2s = 0.5 / (sx + sy)
+    return (pbx - mbx) * inv2s, (pby - mby) * inv2s, (pbz - mbz) * inv2s
+
+
 @nb.njit(cache=True, **NO_REFCOUNT)
 def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid):
     """Slope derivatives at one RK stage and their partials.
@@ -207,34 +217,17 @@ def _stage_jacobian(x, y, z, tx, ty, qop, field_kind, field_params, field_grid):
     # ∂/∂qop
     j04 = C_LIGHT * n * ax
     j14 = C_LIGHT * n * ay
-    # ∂/∂x, ∂/∂y through the field gradient (the map's exact one; the dipole's by central differences)
-    if field_kind == FIELD_MAP:
-        j00 = kqn * (tx * ty * gxx - (1.0 + tx * tx) * gxy + ty * gxz)
-        j10 = kqn * ((1.0 + ty * ty) * gxx - tx * ty * gxy - tx * gxz)
-        j01 = kqn * (tx * ty * gyx - (1.0 + tx * tx) * gyy + ty * gyz)
-        j11 = kqn * ((1.0 + ty * ty) * gyx - tx * ty * gyy - tx * gyz)
-    elif field_kind == FIELD_UNIFORM:
-        j00 = 0.0
-        j01 = 0.0
-        j10 = 0.0
-        j11 = 0.0
-    else:
-        s = FIELD_GRADIENT_STEP
-        inv2s = 0.5 / s
-        pbx, pby, pbz = field_at(field_kind, field_params, field_grid, x + s, y, z)
-        mbx, mby, mbz = field_at(field_kind, field_params, field_grid, x - s, y, z)
-        gbx = (pbx - mbx) * inv2s
-        gby = (pby - mby) * inv2s
-        gbz = (pbz - mbz) * inv2s
-        j00 = kqn * (tx * ty * gbx - (1.0 + tx * tx) * gby + ty * gbz)
-        j10 = kqn * ((1.0 + ty * ty) * gbx - tx * ty * gby - tx * gbz)
-        pbx, pby, pbz = field_at(field_kind, field_params, field_grid, x, y + s, z)
-        mbx, mby, mbz = field_at(field_kind, field_params, field_grid, x, y - s, z)
-        gbx = (pbx - mbx) * inv2s
-        gby = (pby - mby) * inv2s
-        gbz = (pbz - mbz) * inv2s
-        j01 = kqn * (tx * ty * gbx - (1.0 + tx * tx) * gby + ty * gbz)
-        j11 = kqn * ((1.0 + ty * ty) * gbx - tx * ty * gby - tx * gbz)
+    # ∂/∂x, ∂/∂y through the field gradient (the map's exact one; the dipole's by central
+    # differences), then A's combinations of ∂B/∂x and of ∂B/∂y once for both
+    if field_kind == FIELD_UNIFORM:
+        return ftx, fty, (0.0, 0.0, j02, j03, j04), (0.0, 0.0, j12, j13, j14)
+    if field_kind != FIELD_MAP:
+        gxx, gxy, gxz = _central_difference(field_kind, field_params, field_grid, x, y, z, FIELD_GRADIENT_STEP, 0.0)
+        gyx, gyy, gyz = _central_difference(field_kind, field_params, field_grid, x, y, z, 0.0, FIELD_GRADIENT_STEP)
+    j00 = kqn * (tx * ty * gxx - (1.0 + tx * tx) * gxy + ty * gxz)
+    j10 = kqn * ((1.0 + ty * ty) * gxx - tx * ty * gxy - tx * gxz)
+    j01 = kqn * (tx * ty * gyx - (1.0 + tx * tx) * gyy + ty * gyz)
+    j11 = kqn * ((1.0 + ty * ty) * gyx - tx * ty * gyy - tx * gyz)
     return ftx, fty, (j00, j01, j02, j03, j04), (j10, j11, j12, j13, j14)
 
 
