@@ -73,7 +73,14 @@ products; and (2026-12-06, branch exp) the lanes' rows made by 8×8 transposes i
 `_gather_node` (perf put 43 % of this loop's samples on those gathers), with a read
 prefetch of the next node's records and the outputs transposed likewise: bitwise the same,
 fit_core minimum bias 287–290 → 294–312 ns/node (4 rounds, alternating processes) — the
-samples on the gathers were the loop waiting there, not the gathers' own cost. Next: a forward filter whose F·P·Fᵀ uses the
+samples on the gathers were the loop waiting there, not the gathers' own cost; a read
+prefetch of the next group's node data (z, measurements, seed; the tracks of a group lie
+scattered in the batch) 285–290 → 287–292; the forward step's state, F and Q on the stack,
+copied to the node's rows after (`_fit_once`; branch exp2) forward 189–195 → 195–206. In a
+separate kernel the forward filter alone (step, F·P·Fᵀ + Q, updates) takes 120–123 ns/node
+in batch order with its outputs on the stack, 130–132 in `lane_order`, 138–140 with the
+step's outputs in the node rows and 142–143 with the P_k|k−1 and x_k|k copies too, where the
+lane loop's forward takes ~166: the remaining ~23 ns/node are the loop around it. Next: a forward filter whose F·P·Fᵀ uses the
 parametrized steps' structure in lanes (the dense one costs more than the latency it
 hides), or fewer numbers per node to move (F and Q of a parametrized step have ~10
 non-trivial entries each).
