@@ -80,10 +80,18 @@ copied to the node's rows after (`_fit_once`; branch exp2) forward 189–195 →
 separate kernel the forward filter alone (step, F·P·Fᵀ + Q, updates) takes 120–123 ns/node
 in batch order with its outputs on the stack, 130–132 in `lane_order`, 138–140 with the
 step's outputs in the node rows and 142–143 with the P_k|k−1 and x_k|k copies too, where the
-lane loop's forward takes ~166: the remaining ~23 ns/node are the loop around it. Next: a forward filter whose F·P·Fᵀ uses the
-parametrized steps' structure in lanes (the dense one costs more than the latency it
-hides), or fewer numbers per node to move (F and Q of a parametrized step have ~10
-non-trivial entries each).
+lane loop's forward takes ~166: the remaining ~23 ns/node are the loop around it. Also
+tried (2026-12-06, fit_core minimum bias, 4 rounds alternating with main, bitwise the same
+outputs): the combination at node k and the step to k − 1 in one lane loop, one basic block
+in which the step's chain of pivots could overlap the combination's inverses (branch
+fuse): 286–294 → 295–297 ns/node, so this loop does not wait on that chain; a read
+prefetch of the next track's UT→SciFi table cells (its seed carried straight to the
+table's z, the 3 × 3 cells around, 144 lines) before each track's forward filter (branch
+tpf): 285–302 → 288–299, within the noise (the table step is ~510 ns of arithmetic, its
+reads ~100 ns: `pkf.params.ut_to_scifi._six_columns`). Next: a forward filter whose
+F·P·Fᵀ uses the parametrized steps' structure in lanes (the dense one costs more than the
+latency it hides), or fewer numbers per node to move (F and Q of a parametrized step have
+~10 non-trivial entries each).
 """
 
 from __future__ import annotations

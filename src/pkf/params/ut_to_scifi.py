@@ -918,7 +918,14 @@ def _six_columns(cells, u, i, j, ex, ey, n, w, w_xi, w_psi, out, out_xi, out_psi
     compilation, each against an A/B of identical code) ×0.98 ± 0.015: there the table's
     reads from the last-level cache weigh more than its arithmetic (~960 ns per call by
     perf's share of the fit; prefetching the six points' lines when a track enters the UT
-    changed nothing, ×1.008). The localisation (`localize_ut_to_scifi`) ×0.97–0.99."""
+    changed nothing, ×1.008). The localisation (`localize_ut_to_scifi`) ×0.97–0.99.
+    Tried (2026-12-06; the 8,246 table steps of those tracks in the fit's order, one
+    process, old and new alternating, min of 7): the four outputs' eq. 21 sums side by side
+    (a zero-padded copy of the columns, u innermost, for SIMD over the outputs) — bitwise
+    the same on 28,246 states, soft range and beyond included, but LLVM kept the 24
+    accumulators scalar: 480–546 → 435–525 ns per step (the same state over and over, its
+    cells in L1: 375–416 → 336–340), not worth a second copy of the table; a cell-sorted
+    order of the states 455–518: the reads of this 9 MB table cost ~100 ns of the ~500."""
     a = cells[i, j, u, :n]
     b = cells[i + 1, j, u, :n]
     c = cells[i - 1, j, u, :n]
