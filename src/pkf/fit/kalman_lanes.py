@@ -90,7 +90,8 @@ table's z, the 3 × 3 cells around, 144 lines) before each track's forward filte
 tpf): 285–302 → 288–299, within the noise (the table step is ~510 ns of arithmetic, its
 reads ~100 ns: `pkf.params.ut_to_scifi._six_columns`); a read prefetch, one node ahead,
 of the rows the backward filter gathers (x_p, P_p, x_f, F, Q: 40 streams per group, more
-than the hardware prefetcher follows; branch bpf): 289–291 → 294–306. So neither the
+than the hardware prefetcher follows; branch bpf): 289–291 → 294–306; GROUP = 4 (256-bit
+lanes, the same sort window of 128 tracks; branch g4): 287–293 → 287–302. So neither the
 step's latency nor the rows' reads bound the backward loop; by a count of its source (not
 of events: this VM has no hardware counters), a node of a group is ~1,000 8-wide
 arithmetic operations and ~15 divisions, ~1,200–1,500 cycles where the core issues one
