@@ -925,7 +925,10 @@ def _six_columns(cells, u, i, j, ex, ey, n, w, w_xi, w_psi, out, out_xi, out_psi
     the same on 28,246 states, soft range and beyond included, but LLVM kept the 24
     accumulators scalar: 480–546 → 435–525 ns per step (the same state over and over, its
     cells in L1: 375–416 → 336–340), not worth a second copy of the table; a cell-sorted
-    order of the states 455–518: the reads of this 9 MB table cost ~100 ns of the ~500."""
+    order of the states 455–518. So the reads of this 9 MB table cost ~100 ns of the ~500,
+    the arithmetic the rest (not the other way round, as guessed above from perf's share;
+    a read prefetch of a track's cells one track ahead in the fit changed nothing either,
+    `pkf.fit.kalman_lanes`)."""
     a = cells[i, j, u, :n]
     b = cells[i + 1, j, u, :n]
     c = cells[i - 1, j, u, :n]
