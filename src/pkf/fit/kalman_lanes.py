@@ -87,15 +87,16 @@ in which the step's chain of pivots could overlap the combination's inverses (br
 fuse): 286–294 → 295–297 ns/node, so this loop does not wait on that chain; a read
 prefetch of the next track's UT→SciFi table cells (its seed carried straight to the
 table's z, the 3 × 3 cells around, 144 lines) before each track's forward filter (branch
-tpf): 285–302 → 288–299, within the noise (the table step is ~510 ns of arithmetic, its
-reads ~100 ns: `pkf.params.ut_to_scifi._six_columns`); a read prefetch, one node ahead,
+tpf): 285–302 → 288–299, within the noise (of the table step's ~500 ns its reads are
+~100, the rest arithmetic: `pkf.params.ut_to_scifi._six_columns`); a read prefetch, one node ahead,
 of the rows the backward filter gathers (x_p, P_p, x_f, F, Q: 40 streams per group, more
 than the hardware prefetcher follows; branch bpf): 289–291 → 294–306; GROUP = 4 (256-bit
 lanes, the same sort window of 128 tracks; branch g4): 287–293 → 287–302. So neither the
 step's latency nor the rows' reads bound the backward loop; by a count of its source (not
 of events: this VM has no hardware counters), a node of a group is ~1,000 8-wide
 arithmetic operations and ~15 divisions, ~1,200–1,500 cycles where the core issues one
-8-wide multiply–add per cycle, about half the ~2,400 it takes. Next: fewer operations per
+8-wide multiply–add per cycle, about half of the ~800 ns (~2,400 cycles at 3 GHz) it
+takes. Next: fewer operations per
 node — a forward filter whose F·P·Fᵀ uses the parametrized steps' structure in lanes (the
 dense one costs more than the latency it hides), fewer numbers per node to move (F and Q
 of a parametrized step have ~10 non-trivial entries each), a smoother of fewer products
