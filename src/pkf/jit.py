@@ -152,7 +152,7 @@ def prefetch_write_rows(array, lo, hi):
 # ----------------------------------------------------------------------------------
 # Generated kernel source: straight-line code that LLVM vectorises or unrolls, written into
 # a source file between a BEGIN and an END marker line by a generator module and checked by
-# a test to be exactly what it writes (`pkf.params.monomial_codegen`, `pkf.physics.lanes_codegen`)
+# a test to be exactly what it writes (`pkf.physics.lanes_codegen`)
 # ----------------------------------------------------------------------------------
 
 

@@ -145,33 +145,61 @@ def test_monomial_lists_follow_the_field_symmetry():
     assert N_EXTRAPOLATION_PARAMS == LAYER_TY_OFFSET + len(LAYER_TY_MONOMIALS) == 50
 
 
-def test_generated_monomial_code_is_current():
-    """The unrolled sums in formulas.py are exactly what the generator writes for the
-    current exponent lists (run `python -m pkf.params.monomial_codegen --write` after
-    changing a list)."""
-    from pkf.params import monomial_codegen
-
-    assert monomial_codegen.current_block() == monomial_codegen.generated_block()
+#: The eq. 14 terms p0…p14 hold that belong to the kick polynomials (slot, exponents of x, tx, y, ty).
+_TX_BASE_TERMS = ((2, (0, 0, 2, 0)), (6, (0, 2, 0, 0)), (7, (0, 0, 0, 2)), (9, (2, 0, 0, 0)), (11, (0, 0, 1, 1)),
+                  (13, (0, 0, 3, 1)))
+_TY_BASE_TERMS = ((8, (0, 1, 0, 1)), (10, (1, 0, 1, 0)), (12, (0, 1, 1, 0)), (14, (0, 1, 3, 0)))
 
 
-def test_unrolled_monomial_sums_equal_the_generic_loop():
-    """The unrolled sums give bitwise the numbers of the generic loop `_monomial_sum`, and a
-    full set through `layer_step` equals the generic path (a 49-entry copy is summed by the
-    loop, its missing last coefficient set to zero in both)."""
-    from pkf.params.formulas import _monomial_sum, _powers, _tx_monomials, _ty_monomials
+def _monomial_sums(p, state, base_terms, offset, exponents):
+    """Σ p_k·x^a·tx^b·y^c·ty^d over the listed terms, term by term, and its derivatives by
+    x, y, tx, ty; with the sum of the terms' magnitudes (the scale of the rounding)."""
+    x, y, tx, ty = state[:4]
+    terms = list(base_terms) + [(offset + i, tuple(e)) for i, e in enumerate(exponents)]
+    value = np.zeros(5)
+    scale = np.zeros(5)
+    for slot, (a, b, c, d) in terms:
+        def term(ea, eb, ec, ed, factor):
+            return factor * p[slot] * x ** ea * tx ** eb * y ** ec * ty ** ed if factor else 0.0
+        parts = (term(a, b, c, d, 1), term(a - 1, b, c, d, a), term(a, b, c - 1, d, c),
+                 term(a, b - 1, c, d, b), term(a, b, c, d - 1, d))
+        value += parts
+        scale += np.abs(parts)
+    return value, scale
+
+
+def test_factored_kicks_equal_the_monomial_sums():
+    """The factored kick polynomials of `layer_step` (value and derivatives by x, y, tx, ty)
+    are the sums of the listed monomials term by term to within 4e−15 of the terms' sizes,
+    over random coefficients and states across the SciFi (every p0…p49 non-zero)."""
+    from pkf.params.formulas import _tx_kick_polynomial, _ty_kick_polynomial
 
     rng = np.random.default_rng(7)
-    for _ in range(50):
+    for _ in range(200):
         p = rng.normal(size=N_EXTRAPOLATION_PARAMS) * 1e-6
         x, y = rng.uniform(-3000, 3000, size=2)
         tx, ty = rng.uniform(-0.3, 0.3, size=2)
-        powers = (_powers(x), _powers(tx), _powers(y), _powers(ty))
-        assert _tx_monomials(p, *powers) == _monomial_sum(p, LAYER_TX_OFFSET, LAYER_TX_MONOMIALS, *powers)
-        assert _ty_monomials(p, *powers) == _monomial_sum(p, LAYER_TY_OFFSET, LAYER_TY_MONOMIALS, *powers)
-        p[-1] = 0.0
-        s = np.array([x, y, tx, ty, rng.uniform(-1e-3, 1e-3)])
-        out_full, out_loop = np.empty(5), np.empty(5)
-        jac_full, jac_loop = np.empty((5, 5)), np.empty((5, 5))
-        layer_step(p, s, 8036.0, 8508.0, out_full, jac_full)
-        layer_step(p[:-1].copy(), s, 8036.0, 8508.0, out_loop, jac_loop)
-        assert np.array_equal(out_full, out_loop) and np.array_equal(jac_full, jac_loop)
+        powers = (x, tx, y, ty, x * x, x * tx, tx * tx, y * y, y * ty, ty * ty)
+        state = np.array([x, y, tx, ty])
+        for kick, base, offset, exponents in ((_tx_kick_polynomial, _TX_BASE_TERMS, LAYER_TX_OFFSET,
+                                                LAYER_TX_MONOMIALS),
+                                               (_ty_kick_polynomial, _TY_BASE_TERMS, LAYER_TY_OFFSET,
+                                                LAYER_TY_MONOMIALS)):
+            expected, scale = _monomial_sums(p, state, base, offset, exponents)
+            got = np.array(kick(p, *powers))
+            assert np.all(np.abs(got - expected) <= 4e-15 * scale + 1e-300), (kick, got - expected, scale)
+
+
+def test_short_parameter_sets_are_zero_padded():
+    """A set without its last coefficients is the full set with those coefficients zero,
+    bit for bit."""
+    p = _extended_layer_params()
+    s = np.array([-420.0, 910.0, -0.15, 0.12, 1 / 3500.0])
+    for n in (15, 34, 49):
+        q = p.copy()
+        q[n:] = 0.0
+        out_full, out_short = np.empty(5), np.empty(5)
+        jac_full, jac_short = np.empty((5, 5)), np.empty((5, 5))
+        layer_step(q, s, 8036.0, 8508.0, out_full, jac_full)
+        layer_step(p[:n].copy(), s, 8036.0, 8508.0, out_short, jac_short)
+        assert np.array_equal(out_full, out_short) and np.array_equal(jac_full, jac_short)
