@@ -110,7 +110,12 @@ def _identity(jac):
 
 @nb.njit(cache=True)
 def velo_step(p, s, z_from, z_to, out, jac):
-    """Paper eq. 10 (VELO ↔ VELO)."""
+    """Paper eq. 10 (VELO ↔ VELO).
+
+    A call, not inlined: inlined (with `_identity` and `parametrized_noise`; branch inl,
+    issue 18.1) the VELO → VELO steps of benchmarks/fit_core.py's minimum-bias tracks took
+    30.7 → 40.7 ns per step and the forward filter did not change (162.3 → 161.6 ns per
+    node; one process, both compiled side by side, alternating, 6 rounds, min of 5)."""
     dz = z_to - z_from
     x, y, tx, ty, qop = s[0], s[1], s[2], s[3], s[4]
     k = p[0] * (z_from + p[1]) * dz
@@ -273,9 +278,18 @@ def layer_step(p, s, z_from, z_to, out, jac):
     The kicks are evaluated factored (`_tx_kick_polynomial`, `_ty_kick_polynomial`: ~135
     operations for both kicks and their derivatives where the sums term by term took ~300),
     so the rounding differs from the sums in the order of the paper's formula by ≤ 5e−16
-    of each output's scale (the largest |value| over 10⁵ random UT and SciFi states). Measured
-    (issue 18.1; CPU, one process, min of 7, alternating, 10⁵ steps over the shipped UT
-    and SciFi slots): 88–94 → 62–69 ns per step.
+    of each output's scale (the largest |value| over 10⁵ random UT and SciFi states).
+    Measured (issue 18.1; benchmarks/fit_core.py's minimum-bias tracks, the step groups and
+    forward filter of benchmarks/parametrized_steps.py, the term-by-term sums and this code
+    compiled side by side in one process, alternating, 6 rounds, min of 5 each): SciFi →
+    SciFi 74.0 → 49.2 ns per step (×0.66), UT → UT 117.5 → 93.2 (×0.79), the forward filter
+    (steps, covariance transport, updates) 123.3 → 116.1 ns per node (×0.94). The fit's
+    outputs (benchmarks/table_hashes.py --against the term-by-term sums): the same
+    candidates, χ² within 1e−10 relative, states within 3e−10 and pulls within 5e−9 of each
+    column's RMS; fit_core's tracks with the same seeds: node states median 1e−11 σ, max
+    1e−8 σ apart, q/p ≤ 1.8e−11 relative, the same status. That is a last-bit change of the
+    steps' tx seen through the fit: the q/p information is the kick, ~1e−5 of tx for the
+    straightest tracks, so one unit in the last place of tx is ~1e−11 of their q/p.
 
     Inlined into its callers (the fit's step, the forward search's transports): as a call it
     took its six arguments' ~34 machine words by value and wrote out and jac through memory
