@@ -13,8 +13,9 @@ per node.
 
 ``--against CHECKOUT`` compares checkouts in one process: CHECKOUT's pkf, imported beside
 this one as ``pkf_base`` (`twin.load_twin`), fits the same tracks with its own kernels,
-the two alternating for ``--rounds`` rounds (each the minimum over ``--repeat`` fits); it
-prints both versions' minimum and median and the median over the rounds of new/base. Runs
+the two alternating for ``--rounds`` rounds (`side_by_side.side_by_side`: each the minimum
+over ``--repeat`` fits); it prints both versions' minimum and median and the median over
+the rounds of new/base. Runs
 in separate processes differ by up to ±30 % on this machine (steal time), side by side by
 a few per cent; ``--against .`` (this checkout against itself) gives the null ratio to read
 a difference against.
@@ -30,13 +31,13 @@ import argparse
 import importlib
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fit_compare  # noqa: E402
+from side_by_side import best_of, side_by_side  # noqa: E402
 
 from pkf.fit.driver import FitOutputs, OutlierRule, TrackNodes, max_nodes, track_loop  # noqa: E402
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, kalman_fitter  # noqa: E402
@@ -68,16 +69,6 @@ def core_fit(pkg, name: str, batch, seeds: np.ndarray, covs: np.ndarray, smoothe
     return lambda: loop(*args)
 
 
-def best_ns_per_node(fit, nodes: int, repeat: int) -> float:
-    """Minimum CPU ns per node of `repeat` calls of `fit`."""
-    times = []
-    for _ in range(repeat):
-        t0 = time.process_time()
-        fit()
-        times.append(time.process_time() - t0)
-    return 1e9 * min(times) / nodes
-
-
 def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoother: int, repeat: int) -> float:
     """Minimum CPU ns per node of `repeat` fits of `batch` (after one warm-up fit)."""
     fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1, smoother)
@@ -85,12 +76,12 @@ def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoot
     loop = track_loop(fitter)
     args = (fitter, TrackNodes.of(batch, seeds, covs), OutlierRule(np.array([9.0, 11.83]), 0), FitOutputs.of(r))
     loop(*args)
-    return best_ns_per_node(lambda: loop(*args), batch.z.size, repeat)
+    return 1e9 * best_of(lambda: loop(*args), repeat) / batch.z.size
 
 
 def compare(base_pkg, batch, d, names, rounds: int, repeat: int) -> dict:
-    """Base (`base_pkg`) and this pkf alternating: per fitter and loop (full, forward), each
-    round's minimum over `repeat` fits of both; printed and returned."""
+    """Base (`base_pkg`) and this pkf alternating (`side_by_side.side_by_side`): per fitter and
+    loop (full, forward), each round's minimum over `repeat` fits of both; printed and returned."""
     import pkf
 
     results = {}
@@ -98,14 +89,10 @@ def compare(base_pkg, batch, d, names, rounds: int, repeat: int) -> dict:
           f"{'new/base':>10}{'rounds':>18}")
     for name in names:
         for loop_name in ("full", "forward"):
-            fits = {side: core_fit(pkg, name, batch, d["seeds"], d["seed_covs"], loop_name)
+            runs = {side: core_fit(pkg, name, batch, d["seeds"], d["seed_covs"], loop_name)
                     for side, pkg in (("base", base_pkg), ("new", pkf))}
-            for fit in fits.values():
-                fit()  # compile or load, and warm up
-            times = {"base": [], "new": []}
-            for r in range(rounds):
-                for side in ("base", "new") if r % 2 == 0 else ("new", "base"):
-                    times[side].append(best_ns_per_node(fits[side], batch.z.size, repeat))
+            seconds = side_by_side(runs, rounds, repeat)
+            times = {side: [1e9 * t / batch.z.size for t in values] for side, values in seconds.items()}
             ratios = np.array(times["new"]) / np.array(times["base"])
             row = {side: {"min": min(t), "median": float(np.median(t)), "rounds": t} for side, t in times.items()}
             row["new_over_base_median"] = float(np.median(ratios))

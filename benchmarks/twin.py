@@ -11,8 +11,8 @@ benchmarks can build the same objects from both packages and time them alternate
 (``--against CHECKOUT`` of `fit_core.py` and `parametrized_steps.py`).
 
 The copy lives under $PKF_CACHE_DIR (or ~/.cache/pkf) in ``twins/<digest>``, named by the
-content of the checkout's source, so numba's on-disk cache of its kernels is reused
-between runs. A checkout whose pkf has not the functions a benchmark calls fails with an
+content of the checkout's source, with numba's on-disk cache of its kernels beside it
+(reused between runs). A checkout whose pkf has not the functions a benchmark calls fails with an
 ordinary AttributeError: compare checkouts of the same API (the benchmarks name the
 functions they need).
 
@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import os
+import pkgutil
 import re
 import shutil
 import sys
@@ -75,18 +76,25 @@ def twin_directory(checkout: Path) -> Path:
 
 
 def load_twin(checkout: Path):
-    """Import `checkout`'s pkf as the package ``pkf_base`` and return it. numba caches its kernels
-    by their files' paths, so the copy's never mix with the checkout's; the process's numba cache
-    directory (which the copy's ``__init__`` sets to its own) is left as it was."""
+    """Import `checkout`'s pkf as the package ``pkf_base``, with all its modules, and return it
+    (the one already imported if there is one). numba caches the copy's kernels beside it
+    (their dispatchers read the cache directory when their module is imported, hence all
+    modules at once); the process's cache directory is left as it was."""
     if TWIN_NAME in sys.modules:
         return sys.modules[TWIN_NAME]
     directory = twin_directory(checkout)
     import numba
 
     before = numba.config.CACHE_DIR
+    numba.config.CACHE_DIR = str(directory / "numba")
     sys.path.insert(0, str(directory))
     try:
-        return importlib.import_module(TWIN_NAME)
+        package = importlib.import_module(TWIN_NAME)
+        numba.config.CACHE_DIR = str(directory / "numba")  # its __init__ may have set its own
+        for info in pkgutil.walk_packages(package.__path__, TWIN_NAME + "."):
+            if not info.name.endswith("__main__"):
+                importlib.import_module(info.name)
+        return package
     finally:
         sys.path.remove(str(directory))
         numba.config.CACHE_DIR = before

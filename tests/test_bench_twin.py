@@ -64,3 +64,13 @@ def test_twin_of_this_checkout_has_its_own_kernels_and_computes_the_same_bits(tw
     for a, b in zip(*outputs):
         np.testing.assert_array_equal(a, b)
     assert np.isin(outputs[0][2], (0, 4)).all() and (outputs[0][2] == 0).sum() > 100
+
+
+def test_side_by_side_alternates_the_order_and_keeps_each_rounds_minimum():
+    bench = load_benchmark("side_by_side")
+    calls = []
+    runs = {side: (lambda side=side: calls.append(side)) for side in ("base", "new")}
+    times = bench.side_by_side(runs, rounds=4, repeat=2)
+    assert calls == ["base", "new"] + ["base"] * 2 + ["new"] * 2 + ["new"] * 2 + ["base"] * 2 \
+        + ["base"] * 2 + ["new"] * 2 + ["new"] * 2 + ["base"] * 2
+    assert [len(t) for t in times.values()] == [4, 4] and min(min(t) for t in times.values()) >= 0.0
