@@ -12,13 +12,12 @@ of the kernels. Prints the minimum over ``--repeat`` of the CPU time (time.proce
 per node.
 
 ``--against CHECKOUT`` compares checkouts in one process: CHECKOUT's pkf, imported beside
-this one as ``pkf_base`` (`twin.load_twin`), fits the same tracks with its own kernels,
-the two alternating for ``--rounds`` rounds (`side_by_side.side_by_side`: each the minimum
-over ``--repeat`` fits); it prints both versions' minimum and median and the median over
-the rounds of new/base. Runs
-in separate processes differ by up to ±30 % on this machine (steal time), side by side by
-a few per cent; ``--against .`` (this checkout against itself) gives the null ratio to read
-a difference against.
+this one as ``pkf_base_<digest>`` (`twin.load_twin`), fits the same tracks with its own
+kernels, the two alternating for ``--rounds`` rounds (`twin.side_by_side`: each the
+minimum over ``--repeat`` fits); it prints both versions' minimum and median and the median
+over the rounds of new/base. Runs in separate processes differ by up to ±30 % on this
+machine (steal time), side by side by a few per cent; ``--against .`` (this checkout against
+itself) gives the null ratio to read a difference against.
 
     python benchmarks/fit_core.py [--fitters parametrized,reference] [--repeat 15] \
         [--sample pigun|minbias] [--data /tmp/fit-compare-pigun-300.npz] [--json out.json]
@@ -28,7 +27,6 @@ a difference against.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import sys
 from pathlib import Path
@@ -37,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fit_compare  # noqa: E402
-from side_by_side import best_of, side_by_side  # noqa: E402
+from twin import best_of, side_by_side, submodule  # noqa: E402
 
 from pkf.fit.driver import FitOutputs, OutlierRule, TrackNodes, max_nodes, track_loop  # noqa: E402
 from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, kalman_fitter  # noqa: E402
@@ -50,7 +48,7 @@ def core_fit(pkg, name: str, batch, seeds: np.ndarray, covs: np.ndarray, smoothe
     extrapolator, with the weighted mean (`smoother` "full") or forward only ("forward"): a
     function of no arguments (the first call compiles or loads the kernels)."""
     def module(name):
-        return importlib.import_module(f"{pkg.__name__}.{name}")
+        return submodule(pkg, name)
 
     geometry = module("geometry").load_geometry("lhcb-like")
     if name == "parametrized":
@@ -80,7 +78,7 @@ def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoot
 
 
 def compare(base_pkg, batch, d, names, rounds: int, repeat: int) -> dict:
-    """Base (`base_pkg`) and this pkf alternating (`side_by_side.side_by_side`): per fitter and
+    """Base (`base_pkg`) and this pkf alternating (`twin.side_by_side`): per fitter and
     loop (full, forward), each round's minimum over `repeat` fits of both; printed and returned."""
     import pkf
 

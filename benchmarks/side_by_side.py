@@ -1,9 +1,9 @@
 """Two checkouts side by side in one process: the CPU time of one workload, alternating (issue 18).
 
-CHECKOUT's pkf is imported beside this one as ``pkf_base`` (`twin.load_twin`); each
+CHECKOUT's pkf is imported beside this one as ``pkf_base_<digest>`` (`twin.load_twin`); each
 workload is built from both packages on the same inputs, and the two are timed
-alternately for ``--rounds`` rounds (each round the minimum over ``--repeat`` runs, CPU
-time, `time.process_time`; the order within a round alternates too). Prints both
+alternately for ``--rounds`` rounds (`twin.side_by_side`: each round the minimum over
+``--repeat`` runs, CPU time, `time.process_time`; which goes first alternates by round). Prints both
 versions' minimum and median and the median and range over the rounds of new/base; JSON
 with ``--json``. Workloads:
 
@@ -30,10 +30,8 @@ bias, 6 rounds of 3: 1.022 (1.006–1.132); gsf, 60 events (571 tracks), 4 round
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -43,12 +41,11 @@ import fit_compare  # noqa: E402
 import twin  # noqa: E402
 
 
-def module(pkg, name: str):
-    """Submodule `name` of the package `pkg` (pkf or its twin)."""
-    return importlib.import_module(f"{pkg.__name__}.{name}")
+module = twin.submodule
 
 
 def fit_workload(args):
+    """(build, nodes, 1e9, unit): `build(package)` gives `fit_core.core_fit`'s full fit of its tracks."""
     import fit_core
 
     batch, d = fit_compare.load_sample(args.sample, args.data)
@@ -60,6 +57,7 @@ def fit_workload(args):
 
 
 def pattern_workload(args):
+    """(build, events, 1e3, unit): `build(package)` gives the package's `triplet_candidates` on the events."""
     from pkf.geometry import load_geometry
     from pkf.pipeline.simulate import SimulationConfig, simulate_batch
 
@@ -78,6 +76,7 @@ def pattern_workload(args):
 
 
 def gsf_workload(args):
+    """(build, tracks, 1e3, unit): `build(package)` gives the package's GSF (12 components) of the electrons."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "fit"))
     from fit_helpers import TruthSample
     from gsf_components import subset
@@ -105,28 +104,6 @@ def gsf_workload(args):
 WORKLOADS = {"fit": fit_workload, "pattern": pattern_workload, "gsf": gsf_workload}
 
 
-def best_of(run, repeat: int) -> float:
-    """Minimum CPU seconds of `repeat` calls of `run`."""
-    times = []
-    for _ in range(repeat):
-        t0 = time.process_time()
-        run()
-        times.append(time.process_time() - t0)
-    return min(times)
-
-
-def side_by_side(runs: dict, rounds: int, repeat: int) -> dict[str, list[float]]:
-    """CPU seconds per round of each of runs["base"], runs["new"], alternating (base first in
-    even rounds), after one warm-up call of each."""
-    for run in runs.values():
-        run()
-    times = {"base": [], "new": []}
-    for r in range(rounds):
-        for side in ("base", "new") if r % 2 == 0 else ("new", "base"):
-            times[side].append(best_of(runs[side], repeat))
-    return times
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--against", type=Path, required=True, help="the pkf checkout to compare with")
@@ -145,7 +122,7 @@ def main() -> None:
 
     base = twin.load_twin(args.against)
     build, count, scale, unit = WORKLOADS[args.workload](args)
-    times = side_by_side({"base": build(base), "new": build(pkf)}, args.rounds, args.repeat)
+    times = twin.side_by_side({"base": build(base), "new": build(pkf)}, args.rounds, args.repeat)
     per = {side: [scale * t / count for t in values] for side, values in times.items()}
     ratios = np.array(times["new"]) / np.array(times["base"])
     print(f"{args.workload} ({count} {unit.split()[-1]}s), {unit}, CPU, min of {args.repeat} per round, "

@@ -27,3 +27,13 @@ def truth_sample_class():
     from fit_helpers import TruthSample
 
     return TruthSample
+
+
+def forget_twin(monkeypatch):
+    """Unload the ``pkf_base_<digest>`` packages (`benchmarks/twin.py`) a previous test imported,
+    all their modules (restored after the test), so that the next `load_twin` imports a fresh
+    copy."""
+    import sys
+
+    for name in [m for m in sys.modules if m.startswith("pkf_base_")]:
+        monkeypatch.delitem(sys.modules, name)

@@ -1,12 +1,12 @@
-"""`benchmarks/twin.py`: another checkout's pkf imported beside this one as ``pkf_base``, for
+"""`benchmarks/twin.py`: another checkout's pkf imported beside this one as ``pkf_base_<digest>``, for
 side-by-side timing in one process (`benchmarks/fit_core.py --against`)."""
 
-import sys
+import importlib
 from pathlib import Path
 
 import numpy as np
 import pytest
-from bench_helpers import load_benchmark
+from bench_helpers import forget_twin, load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,16 +35,16 @@ def test_twin_of_this_checkout_has_its_own_kernels_and_computes_the_same_bits(tw
     """The copy imports, finds its package data (the shipped UT→SciFi table) and compiles its
     own kernels (its own dispatcher objects), which give bitwise this checkout's results."""
     monkeypatch.setenv("PKF_CACHE_DIR", str(tmp_path))
-    monkeypatch.delitem(sys.modules, twin.TWIN_NAME, raising=False)
+    forget_twin(monkeypatch)
     base = twin.load_twin(ROOT)
-    assert base.__name__ == "pkf_base" and Path(base.__file__).is_relative_to(tmp_path)
+    assert base.__name__.startswith("pkf_base_") and Path(base.__file__).is_relative_to(tmp_path)
     from pkf.geometry import load_geometry
     from pkf.params.parameter_set import shipped_parameters
     from pkf.params.ut_to_scifi import ut_to_scifi_extrapolate_many
 
-    import pkf_base.params.parameter_set as base_parameter_set
-    import pkf_base.params.ut_to_scifi as base_ut_to_scifi
-    from pkf_base.geometry import load_geometry as base_load_geometry
+    base_parameter_set = importlib.import_module(f"{base.__name__}.params.parameter_set")
+    base_ut_to_scifi = importlib.import_module(f"{base.__name__}.params.ut_to_scifi")
+    base_load_geometry = importlib.import_module(f"{base.__name__}.geometry").load_geometry
 
     assert base_ut_to_scifi.ut_to_scifi_extrapolate_many is not ut_to_scifi_extrapolate_many
     meta, cells = shipped_parameters(load_geometry("lhcb-like")).ut_to_scifi.as_arrays()
@@ -67,7 +67,7 @@ def test_twin_of_this_checkout_has_its_own_kernels_and_computes_the_same_bits(tw
 
 
 def test_side_by_side_alternates_the_order_and_keeps_each_rounds_minimum():
-    bench = load_benchmark("side_by_side")
+    bench = load_benchmark("twin")
     calls = []
     runs = {side: (lambda side=side: calls.append(side)) for side in ("base", "new")}
     times = bench.side_by_side(runs, rounds=4, repeat=2)
