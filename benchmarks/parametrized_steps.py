@@ -30,11 +30,10 @@ orders of compilation, against an A/B of identical code, not separate runs.
 ``--against CHECKOUT`` does that: CHECKOUT's pkf, imported beside this one as
 ``pkf_base_<digest>`` (`twin.load_twin`), builds its own parametrized extrapolator, whose
 record type is registered here with the twin's step (`register_extrapolator`), so the
-kernels above time both extrapolators on the same states
-(the states are this checkout's chain; the covariance transport and the update are this
-checkout's on both sides: the comparison is of the steps). The two alternate for
-``--rounds`` rounds (each the minimum over ``--repeat``); printed per group: both minima and
-medians, the median over the rounds of new/base. The null comparison (2026-12-06,
+kernels above time both extrapolators on the same states (this checkout's chain; the
+covariance transport and the update are this checkout's on both sides: the comparison is of
+the steps). The two alternate for ``--rounds`` rounds (each the minimum over ``--repeat``);
+printed per group: both minima and medians, the median over the rounds of new/base. The null comparison (2026-12-06,
 ``--against .``, 4 rounds of 3): new/base 0.97–1.00 for the step groups (ranges within
 0.92–1.07), 1.009–1.058 for the forward filter's stages (ranges up to 1.19): read a
 difference against these. Where the machine was slow, UT→UT measured 95–135 ns per step
