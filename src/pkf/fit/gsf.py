@@ -255,13 +255,36 @@ magnet (first SciFi hit) the posterior is too wide (PIT width 0.6; 0.4/0.54/0.72
 4/8/16 components: the KL reduction of the 12 × 12 product merges distinct hypotheses).
 
 Cost. Each component's mean is transported by RK4; by default (`share_jacobians`) the
-RK4 Jacobian is integrated only for the largest-weight component and applied to every
-component's covariance. The transport Jacobian of a z-parametrised state depends on
-q/p only through the small field-gradient and slope-curvature terms, so components that
-differ in q/p by the tens of percent of a hard bremsstrahlung share it with a relative
-error of the covariance ~1e−3; it saves the 4 extra field evaluations per stage and the
-Jacobian algebra per component. With ``share_jacobians=False`` every component
-integrates its own. Measured (`python benchmarks/gsf_components.py --events 100
+RK4 Jacobian is integrated for the largest-weight component and shared by the
+components whose bends over the transport differ from its own by at most
+`JACOBIAN_SHARE_KICK` = 0.03 rad; the others group around a few anchors in q/p, each
+with its own Jacobian (`_share_jacobians`). The transport Jacobian of a z-parametrised
+state depends on q/p through the bend (the (1 + t²) factors and the slopes along the
+path), and the bends scale with q/p: in the VELO every component takes the lead's,
+through the magnet the hard-radiation hypotheses do not. Sharing saves the 4 extra field
+evaluations per stage and the Jacobian algebra per component. With
+``share_jacobians=False`` every component integrates its own. Until 2026-12 every
+component took the lead's Jacobian: through the magnet a sub-GeV hypothesis of a 2 GeV
+track moved by the 2 GeV Jacobian, the last-hit q/p differed from the per-component
+Jacobians' fit by 0.104σ RMS, and a track whose mixture spans a factor of several in q/p
+changed its fit discontinuously with 1e−9 changes of its Bethe–Heitler mixture (the
+heap-corruption track of tests/fit/test_gsf.py: χ² 102.37, 102.64, 104.4 or failed,
+against 61.27 with per-component Jacobians; now 61.62 whatever the perturbation).
+Measured (the `benchmarks/gsf_components.py` sample, 60 events, 571 tracks, 12
+components, every rule in one process, alternating, min of 12 rounds of CPU time; q/p
+differences to the per-component Jacobians' fit in units of its σ, RMS over the 570
+tracks every rule fits):
+
+| Jacobian shared within | ms per track | Δ(q/p) first hit | Δ(q/p) last hit | failed |
+|---|---|---|---|---|
+| all (the lead's) | 3.18 | 0.038σ | 0.104σ | 1 |
+| 0.1 rad | 3.37 | 0.024σ | 0.013σ | 0 |
+| 0.03 rad (default) | 3.37 | 0.009σ | 0.007σ | 0 |
+| 0.01 rad | 3.55 | 0.017σ | 0.004σ | 0 |
+| none (``share_jacobians=False``) | 3.97 | 0 | 0 | 0 |
+
+The first-hit q/p pull core (0.668–0.679) and δp/p core (14.54–14.76 %) agree within
+their statistical errors for every rule. Earlier measurements (`python benchmarks/gsf_components.py --events 100
 --repeat 3`, lhcb-like electrons, one loaded 2-core machine): 1.5 / 3.7 / 6.2 / 9.1 ms
 per track with at most 4 / 8 / 12 / 16 components (≈ n^1.3), 8.9 ms at 12 with a
 Jacobian per component, 0.24 ms for the reference Kalman fit (efa2332); after issue 18.2
@@ -399,6 +422,13 @@ OUTPUTS = {"core": OUTPUT_CORE, "mode": OUTPUT_MODE, "mean": OUTPUT_MEAN, "max-w
 _CORE_WINDOW = 3.0
 _CORE_TRUNCATED_VARIANCE = 1.0 - 2.0 * _CORE_WINDOW * math.exp(-0.5 * _CORE_WINDOW**2) / math.sqrt(
     2.0 * math.pi) / math.erf(_CORE_WINDOW / math.sqrt(2.0))
+#: Components of one plane whose paths t (in X0) agree within this relative tolerance share
+#: one Bethe–Heitler mixture (`_material`): it moves the mixture's mean loss by ~1e-4 of
+#: itself, ~1e-6 of the energy at x/X0 = 0.01.
+BH_SHARED_T_TOLERANCE = 1e-4
+#: With shared Jacobians, components share one only where their bends over the transport
+#: differ by at most this [rad] (`_share_jacobians`; module docstring, "Cost").
+JACOBIAN_SHARE_KICK = 0.03
 #: Vague prior of the backward filter (see the module docstring).
 BACKWARD_PRIOR_VARIANCES = (400.0, 400.0, 0.01, 0.01)
 BACKWARD_PRIOR_QOP_FRACTION = 0.1
@@ -437,16 +467,21 @@ class GsfExtrapolator(NamedTuple):
     peak_window: float
     sibling_target: int
     product_target: int
+    bh_shared_t_tolerance: float
+    jacobian_share_kick: float
 
 
 def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool | None = None,
                      share_jacobians: bool = True, mixture: BetheHeitlerMixture | None = None,
                      seed_qop_fraction: float = SEED_QOP_FRACTION, peak_window: float = PEAK_WINDOW,
-                     field=None) -> GsfExtrapolator:
+                     field=None, bh_shared_t_tolerance: float = BH_SHARED_T_TOLERANCE,
+                     jacobian_share_kick: float = JACOBIAN_SHARE_KICK) -> GsfExtrapolator:
     """The GSF context for `geometry`: mass hypothesis [MeV] (bremsstrahlung modelled by
     default only for the electron mass), Jacobian sharing, the Bethe–Heitler mixture
     (the shipped one by default), the least q/p width of the forward filter's seed (as a
-    fraction of |q/p|) and the "mode" output's peak window (see the module docstring). The
+    fraction of |q/p|), the "mode" output's peak window (see the module docstring) and the
+    relative tolerance within which the components of a plane share a Bethe–Heitler mixture
+    (`_material`; 0: each its own, exactly equal paths only). The
     mixture options (largest number of components, weight cut, output) are fit options
     (`GSFOptions`, `--max-components`, `--gsf-weight-cut`, `--gsf-output`), set by
     `fit_batch_gsf`; the context carries their defaults."""
@@ -459,7 +494,7 @@ def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool 
                            float(mixture.t_max), bool(bethe_heitler), defaults.max_components,
                            defaults.weight_cut, OUTPUTS[defaults.output], bool(share_jacobians),
                            float(seed_qop_fraction), float(peak_window), sibling_target(defaults),
-                           product_target(defaults))
+                           product_target(defaults), float(bh_shared_t_tolerance), float(jacobian_share_kick))
 
 
 def sibling_target(options: GSFOptions) -> int:
@@ -1088,14 +1123,16 @@ def widen_to_mixture(cov, mixture_cov):
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
-def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work, many):
-    """RK4 of every component's mean from z_from to z_to, covariances by the Jacobian
-    (the leading component's if ctx.share_jacobians and the leading one stays in the
-    envelope; else each its own). A component that fails (leaves the z-parametrised
-    envelope, or a variance overflows) gets weight 0. Returns the number of surviving
-    components. `work` (5, 5, 5) scratch: the RK stages and the leading state; `many`
-    (5, ≥ n) scratch: the other components' means side by side (`_move_others`; nothing
-    is allocated)."""
+def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work, many, anchor_jac, anchor):
+    """RK4 of every component's mean from z_from to z_to, covariances by a Jacobian: with
+    ctx.share_jacobians (and a leading component that stays in the envelope) shared by the
+    components whose bends over the transport differ by at most ctx.jacobian_share_kick
+    (`_share_jacobians`), else each its own. A component that fails (leaves the
+    z-parametrised envelope, or a variance overflows) gets weight 0. Returns the number of
+    surviving components. `work` (5, 5, 5) scratch: the RK stages and the leading state;
+    `many` (5, ≥ n) scratch: the other components' means side by side (`_move_others`);
+    `anchor_jac` (≥ n, 5, 5) and `anchor` (2, ≥ n) int: the shared Jacobians and who
+    shares which (nothing is allocated)."""
     if z_to == z_from:
         return n
     ref = ctx.ref
@@ -1110,12 +1147,13 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work, many):
         # a lead that leaves the envelope has no Jacobian to share: each component its own
         shared = in_envelope(new) and _finite55(seg)
     if shared:
+        _share_jacobians(ctx, mu, n, lead, new, z_from, z_to, work, anchor_jac, anchor)
         _move_others(ref, mu, n, lead, z_from, z_to, many)
+        for i in range(4):
+            mu[lead, i] = new[i]
         for c in range(n):
-            if c == lead:
-                for i in range(4):
-                    mu[c, i] = new[i]
-            sandwich(seg, cov[c], tmp, tmp2)
+            a = anchor[1, c]
+            sandwich(seg if a < 0 else anchor_jac[a], cov[c], tmp, tmp2)
             copy55(tmp2, cov[c])
     else:
         for c in range(n):
@@ -1129,6 +1167,45 @@ def _transport(ctx, w, mu, cov, n, z_from, z_to, seg, tmp, tmp2, work, many):
         else:
             w[c] = 0.0
     return alive
+
+
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _share_jacobians(ctx, mu, n, lead, lead_new, z_from, z_to, work, anchor_jac, anchor):
+    """Which Jacobian each component's covariance takes from z_from to z_to (before the
+    means move): anchor[1, c] = −1 the lead's, else a (anchor_jac[a], integrated from the
+    first component of anchor a, whose index is anchor[0, a]).
+
+    The transport Jacobian of a z-parametrised state depends on q/p through the bend:
+    components whose bends over the transport differ by Δθ have Jacobians that differ by
+    O(Δθ) (the (1 + t²) factors and the slopes along the path), while bends scale with q/p:
+    Δθ = θ_lead·|Δ(q/p)|/|q/p_lead|, θ_lead the lead's change of slope (lead_new against
+    mu[lead]). So a component shares the Jacobian of the lead, or of the first component
+    within ctx.jacobian_share_kick [rad] of it (greedy in component order), or becomes an
+    anchor with its own: every covariance is transported by a Jacobian whose bend is
+    within the tolerance of its own. Sharing the lead's with every component (the
+    previous rule) transported a sub-GeV hypothesis of a 2.2 GeV track through the magnet
+    with the 2.2 GeV Jacobian, and the track's fit changed discontinuously with 1e-9
+    changes of its Bethe–Heitler mixture (tests/fit/test_gsf.py, the heap-corruption track)."""
+    lead_qop = mu[lead, 4]
+    bend = math.hypot(lead_new[2] - mu[lead, 2], lead_new[3] - mu[lead, 3])
+    reach = ctx.jacobian_share_kick * abs(lead_qop) / bend  # in q/p; +inf where nothing bends
+    ref = ctx.ref
+    start = work[4, 1]
+    n_anchors = 0
+    for c in range(n):
+        anchor[1, c] = -1
+        if c == lead or not abs(mu[c, 4] - lead_qop) > reach:
+            continue
+        a = 0
+        while a < n_anchors and abs(mu[c, 4] - mu[anchor[0, a], 4]) > reach:
+            a += 1
+        if a == n_anchors:
+            anchor[0, a] = c
+            copy5(mu[c], start)
+            rk4_transport_jacobian(start, z_from, z_to, ref.max_step, ref.field_kind, ref.field_params,
+                                   ref.field_grid, anchor_jac[a], work[:4])
+            n_anchors += 1
+        anchor[1, c] = a
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
@@ -1188,10 +1265,17 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
     Bethe–Heitler convolution; each output component's input component into `parent` (the
     children of one component are consecutive). A component whose particle stops in the
     plane (q/p → ±inf) is dropped. Returns the number of output components (0 if every one
-    stopped)."""
+    stopped).
+
+    The components' paths t through the plane differ only through their slopes, so a
+    component whose t agrees with the last evaluated one within `ctx.bh_shared_t_tolerance`
+    (relative, `BH_SHARED_T_TOLERANCE` by default) reuses that Bethe–Heitler mixture (bw, bm, bv) instead of evaluating its
+    logarithm, exponentials and polynomials again."""
     ref = ctx.ref
     log_t_min = math.log(ctx.bh_t_min)
     log_t_max = math.log(ctx.bh_t_max)
+    shared_t = -1.0  # t of the mixture now in (bw, bm, bv); none yet
+    shared_count = 0
     out = 0
     for c in range(n):
         set_identity(jm)
@@ -1212,8 +1296,13 @@ def _material(ctx, k, direction, w, mu, cov, n, w2, mu2, cov2, jm, noise, bw, bm
                 pc[i, j] += noise[i, j]
         nb_comp = 0
         if ctx.bethe_heitler and t > 0.0 and mu[c, 4] != 0.0 and math.isfinite(mu[c, 4]):
-            nb_comp = bethe_heitler_components_logs(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max, log_t_min,
-                                                    log_t_max, t, bw, bm, bv)
+            if abs(t - shared_t) <= ctx.bh_shared_t_tolerance * t:
+                nb_comp = shared_count
+            else:
+                nb_comp = bethe_heitler_components_logs(ctx.bh_coefficients, ctx.bh_t_min, ctx.bh_t_max,
+                                                        log_t_min, log_t_max, t, bw, bm, bv)
+                shared_t = t
+                shared_count = nb_comp
         if nb_comp == 0:
             _copy_component(w, mu, cov, c, w2, mu2, cov2, out)
             parent[out] = c
@@ -1265,7 +1354,7 @@ def _mixture_transport(actor, ext, z_from, z_to, crossed):
     w, mu, cov = actor.buf[0], actor.buf[1], actor.buf[2]
     n = actor.count[0]
     _transport(actor.ctx, w, mu, cov, n, z_from, z_to, actor.scratch[0], actor.scratch[1], actor.scratch[2],
-               actor.scratch[6:11], actor.moments)
+               actor.scratch[6:11], actor.moments, actor.scratch[11:], actor.nearest[4:])
     n = _normalise_and_cut(w, mu, cov, n, 0.0)
     actor.count[0] = n
     return STATUS_OK if n > 0 else STATUS_EXTRAPOLATION_FAILED
@@ -1843,8 +1932,8 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
          np.zeros((cap, 5, 5))),
         (np.zeros(cap), np.zeros((cap, 5)), np.zeros((cap, 5, 5)), np.zeros((25, cap)), np.zeros((45, cap))),
         np.zeros((n_nodes, mc)), np.zeros((n_nodes, mc, 5)), np.zeros((n_nodes, mc, 5, 5)),
-        np.zeros(n_nodes, dtype=np.int64), np.zeros((4, cap + 1), dtype=np.int64), np.zeros((5, cap)),
-        np.zeros((11, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
+        np.zeros(n_nodes, dtype=np.int64), np.zeros((6, cap + 1), dtype=np.int64), np.zeros((5, cap)),
+        np.zeros((11 + cap, 5, 5)), np.zeros((3, max(k_bh, 1))), np.zeros(20), np.zeros(1, dtype=np.int64),
         node_stages(0, smoothed=True) if stages is None else stages, np.zeros((n_nodes, 5, 5)),
         np.zeros(n_tracks, dtype=np.int8) if qop_prior_kind is None
         else np.ascontiguousarray(qop_prior_kind, dtype=np.int8),
