@@ -37,10 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fit_compare  # noqa: E402
 from twin import best_of, side_by_side, submodule  # noqa: E402
 
-from pkf.fit.driver import FitOutputs, OutlierRule, TrackNodes, max_nodes, track_loop  # noqa: E402
-from pkf.fit.kalman import SMOOTHER_NONE, SMOOTHER_WEIGHTED_MEAN, kalman_fitter  # noqa: E402
-from pkf.fit.tracks import FitResult, TrackBatch  # noqa: E402
-from pkf.geometry import load_geometry  # noqa: E402
+from pkf.fit.tracks import TrackBatch  # noqa: E402
 
 
 def core_fit(pkg, name: str, batch, seeds: np.ndarray, covs: np.ndarray, smoother: str):
@@ -67,14 +64,14 @@ def core_fit(pkg, name: str, batch, seeds: np.ndarray, covs: np.ndarray, smoothe
     return lambda: loop(*args)
 
 
-def time_core(ext, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoother: int, repeat: int) -> float:
-    """Minimum CPU ns per node of `repeat` fits of `batch` (after one warm-up fit)."""
-    fitter = kalman_fitter(ext, max_nodes(batch.offsets), 1, smoother)
-    r = FitResult.empty(batch)
-    loop = track_loop(fitter)
-    args = (fitter, TrackNodes.of(batch, seeds, covs), OutlierRule(np.array([9.0, 11.83]), 0), FitOutputs.of(r))
-    loop(*args)
-    return 1e9 * best_of(lambda: loop(*args), repeat) / batch.z.size
+def time_core(name: str, batch: TrackBatch, seeds: np.ndarray, covs: np.ndarray, smoother: str, repeat: int) -> float:
+    """Minimum CPU ns per node of `repeat` fits of `batch` by this pkf's core loop with fitter
+    `name`'s extrapolator (`core_fit`; after one warm-up fit)."""
+    import pkf
+
+    run = core_fit(pkf, name, batch, seeds, covs, smoother)
+    run()
+    return 1e9 * best_of(run, repeat) / batch.z.size
 
 
 def compare(base_pkg, batch, d, names, rounds: int, repeat: int) -> dict:
@@ -126,12 +123,10 @@ def main() -> None:
         if args.json:
             args.json.write_text(json.dumps(results, indent=2) + "\n")
         return
-    geometry = load_geometry("lhcb-like")
     results = {"data": str(args.data), "tracks": int(batch.n_tracks), "nodes": int(batch.z.size), "fitters": {}}
     for name in args.fitters.split(","):
-        ext, _ = fit_compare._fit_function(name, geometry)
-        full = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_WEIGHTED_MEAN, args.repeat)
-        forward = time_core(ext, batch, d["seeds"], d["seed_covs"], SMOOTHER_NONE, args.repeat)
+        full = time_core(name, batch, d["seeds"], d["seed_covs"], "full", args.repeat)
+        forward = time_core(name, batch, d["seeds"], d["seed_covs"], "forward", args.repeat)
         results["fitters"][name] = {"full_ns_per_node": full, "forward_ns_per_node": forward}
         print(
             f"{name:<13} {batch.z.size} nodes  ns/node: full {full:6.0f}  forward {forward:6.0f}  "
