@@ -14,6 +14,7 @@ import logging
 import sys
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 import pytest
 
@@ -22,7 +23,7 @@ from pkf.geometry import load_geometry
 from pkf.geometry.detector import SUBDETECTORS
 from pkf.params.parameter_set import shipped_parameters
 from pkf.params.transport import parametrized_step
-from pkf.params.ut_to_scifi import localize_ut_to_scifi, ut_to_scifi_extrapolate_localized
+from pkf.params.ut_to_scifi import localize_ut_to_scifi, ut_to_scifi_extrapolate_localized, without_soft_range
 from pkf.seeding.forward import (
     STATUS_INVALID,
     STATUS_NO_SCIFI,
@@ -32,11 +33,14 @@ from pkf.seeding.forward import (
     ForwardOptions,
     extend_velo_tracks,
 )
+from pkf.seeding.forward.hough import hough_grid, q_of_t, t_of_q
 from pkf.seeding.forward_steps import (
     TRANSPORT_BELOW_P_MIN,
+    TRANSPORT_FAILED,
     TRANSPORT_OK,
     new_table_buffers,
     reference_trajectory,
+    scan_states,
 )
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -402,6 +406,52 @@ def test_invalid_and_empty_inputs(sample, geometry, ext):
     with pytest.raises(InputError):
         extend_velo_tracks(velo["event"][:1], velo["state"][:1], velo["z"][:1], *hits, telescope,
                            shipped_parameters(telescope).extrapolator(telescope))
+
+
+def test_a_scan_whose_derivatives_overflow_fails(geometry, ext):
+    """The full-range scan of a steep VELO track (minimum bias, ν = 2, seed 2024, event 18 of
+    40): at the lowest q/p node its state at the last SciFi layer is finite but its
+    derivative d/dq is not. The scan must fail there; it returned "below p_min" with
+    non-finite derivatives, from which a hit's implied q/p was NaN, whose Hough cell index
+    (an undefined integer conversion) read out of bounds: a ZeroDivisionError or garbage,
+    depending on the memory next to the table."""
+    search_ext = ext._replace(uts_meta=without_soft_range(ext.uts_meta))
+    sub = geometry.layer_subdetector
+    ut = np.flatnonzero(sub == SUBDETECTORS.index("ut"))
+    scifi = np.flatnonzero(sub == SUBDETECTORS.index("scifi")).astype(np.int64)
+    s0 = np.array([-590.1448802120352, 567.5072790529027, -0.2259109470610586, 0.21716747641854234, 0.0])
+    ds0 = np.array([11579.58901139595, -2723.578252251812, 24.141367825237655, -9.593494038876399, 1.0])
+    q = np.linspace(-1.0, 1.0, 9) / 1500.0
+    poly, ref = new_table_buffers(search_ext)
+    localize_ut_to_scifi(search_ext.uts_meta, search_ext.uts_cells, s0[0], s0[1], poly, ref)
+    xs, dxs, ys, dys = (np.zeros((q.size, scifi.size)) for _ in range(4))
+    status = scan_states(search_ext, poly, ref, True, int(ut[-1]), scifi, s0, ds0, q, xs, dxs, ys, dys,
+                         np.zeros((4, 5, 5)))
+    assert status == TRANSPORT_FAILED
+    # the higher momenta alone transport (the failing node is the lowest momentum's)
+    status = scan_states(search_ext, poly, ref, True, int(ut[-1]), scifi, s0, ds0, q[2:], xs, dxs, ys, dys,
+                         np.zeros((4, 5, 5)))
+    assert status != TRANSPORT_FAILED
+    assert np.isfinite(xs[: q.size - 2]).all() and np.isfinite(dxs[: q.size - 2]).all()
+
+
+@nb.njit
+def _hough_lookups(values, hough):
+    out = np.empty((values.size, 2))
+    for i in range(values.size):
+        out[i, 0] = t_of_q(values[i], hough)
+        out[i, 1] = q_of_t(values[i], hough)
+    return out
+
+
+def test_hough_coordinates_of_non_finite_values_stay_in_the_table():
+    """t_of_q/q_of_t of NaN is NaN and of ±inf is ±inf, from the last interval: no cell is
+    looked up from an undefined integer conversion (they read out of bounds)."""
+    hough = hough_grid(1e-7, 3e-3, 1.0 / 1500.0)
+    out = _hough_lookups(np.array([np.nan, np.inf, -np.inf, 1e300, 2e-4]), hough)
+    assert np.isnan(out[0]).all()
+    assert (out[1] == np.inf).all() and (out[2] == -np.inf).all() and (out[3] > 0).all()
+    np.testing.assert_allclose(q_of_t(t_of_q(2e-4, hough), hough), 2e-4, rtol=1e-12)
 
 
 # ------------------------------------------------------------------------------------

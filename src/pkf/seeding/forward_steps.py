@@ -110,7 +110,12 @@ def scan_states(ext, poly, ref, quadratic, l_from, sf_layers, s0, ds0, q_nodes, 
     for the hypothesis q is s0[:4] + ds0[:4]·(q − s0[4]) (a conditional mean given q,
     e.g. of a fitted UT state); outputs x, y and their total derivatives d/dq on each
     SciFi layer: xs, dxs, ys, dys (n_nodes, n_layers). work: (4, 5, 5) scratch.
-    Returns the worst TRANSPORT_* status.
+    Returns the worst TRANSPORT_* status; TRANSPORT_FAILED where a node's state or its
+    derivative is not finite at the last layer (a non-finite value, once there, stays:
+    the steps are products and sums). The derivative counts too: a steep VELO track
+    (at the last UT layer x = −0.59 m, y = 0.57 m, slopes −0.23, 0.22; minimum bias at
+    ν = 2) kept a finite state at the lowest q/p node whose derivative overflowed, and
+    the scan's implied q/p of a hit became NaN (`pkf.seeding.forward.hough`).
     """
     layer_z = ext.layer_z
     extrap = ext.extrapolation
@@ -148,7 +153,7 @@ def scan_states(ext, poly, ref, quadratic, l_from, sf_layers, s0, ds0, q_nodes, 
             dxs[k, li] = d[0]
             dys[k, li] = d[1]
         for i in range(5):
-            if not np.isfinite(s[i]):
+            if not (np.isfinite(s[i]) and np.isfinite(d[i])):
                 return TRANSPORT_FAILED
     return status
 

@@ -47,12 +47,14 @@ def hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> H
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _interval(a, row, lut, inv_cell):
     """Index lo of the breakpoint interval [row[lo], row[lo+1]) holding a ≥ 0 (the last
-    interval beyond the end), from the cell table of `hough_grid`."""
-    c = int(a * inv_cell)
+    interval beyond the end, and for a NaN: the cell is never read from a value that is not
+    a number below the table's end, whose integer conversion is undefined), from the cell
+    table of `hough_grid`."""
+    cell = a * inv_cell
     last = row.shape[0] - 2
-    if c >= lut.shape[0]:
+    if not cell < lut.shape[0]:
         return last
-    lo = lut[c]
+    lo = lut[int(cell)]
     while lo < last and row[lo + 1] <= a:
         lo += 1
     return lo
