@@ -18,6 +18,7 @@ from pkf.seeding.velo_search import (
     FAST_ATAN2_ERROR,
     N_PHI_BINS,
     _angular_half_width,
+    _bin_ranges,
     _fill_bins,
     _stable_sort_by_key,
     _window_ranges,
@@ -114,3 +115,14 @@ def test_phi_sort_is_numpys_stable_argsort(n):
     _stable_sort_by_key(key, val, 5, 5 + n, np.empty(n + 10), np.empty(n + 10, dtype=np.int64))
     assert np.array_equal(val, want_val)
     assert np.array_equal(key, want_key) and np.array_equal(np.signbit(key), np.signbit(want_key))
+
+
+def test_a_window_that_is_not_a_number_is_the_whole_module():
+    """A NaN or infinite window centre or width (from a prediction that is not finite)
+    visits every hit of the module once, instead of bins from an undefined integer
+    conversion."""
+    hit, bin_off = _module(np.random.default_rng(6), 300)
+    for phi, w in ((math.nan, 0.1), (0.3, math.nan), (math.inf, 0.1), (-math.inf, 0.1), (math.nan, math.nan)):
+        assert _bin_ranges(bin_off, 0, phi, w) == (0, 300, 0, 0)
+    a0, a1, c0, c1 = _bin_ranges(bin_off, 0, 0.3, 0.1)  # a finite window: part of the module
+    assert 0 < a1 - a0 < 300 and c0 == c1 == 0

@@ -389,9 +389,11 @@ def _bin_ranges(bin_off, k, phi, w):
     """Index ranges [a0, a1) and [b0, b1) of the hits of module k of the current event
     in the φ bins overlapping [φ − w, φ + w], wrapping at ±π (the second range is empty
     unless the window wraps); hits near the window edges must still be checked.
-    bin_off[k·(N_PHI_BINS + 1) + b]: first row of bin b of module k (`_fill_bins`)."""
+    bin_off[k·(N_PHI_BINS + 1) + b]: first row of bin b of module k (`_fill_bins`). A window
+    whose width or centre is not a finite number (a prediction that is not) is the whole
+    module: its bins would be undefined integer conversions, read out of bounds."""
     base = k * (N_PHI_BINS + 1)
-    if w >= math.pi:
+    if not (w < math.pi and math.isfinite(phi)):
         return bin_off[base], bin_off[base + N_PHI_BINS], 0, 0
     scale = N_PHI_BINS / (2.0 * math.pi)
     b0 = int(math.floor((phi - w + math.pi) * scale))
