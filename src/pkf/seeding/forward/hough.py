@@ -46,10 +46,10 @@ def hough_grid(tau0: float, tau1: float, q_max: float, ratio: float = 1.25) -> H
 
 @nb.njit(cache=True, inline="always", **NO_REFCOUNT)
 def _interval(a, row, lut, inv_cell):
-    """Index lo of the breakpoint interval [row[lo], row[lo+1]) holding a ≥ 0 (the last
-    interval beyond the end, and for a NaN: the cell is never read from a value that is not
-    a number below the table's end, whose integer conversion is undefined), from the cell
-    table of `hough_grid`."""
+    """Index lo of the breakpoint interval [row[lo], row[lo+1]) holding a ≥ 0, from the cell
+    table of `hough_grid`; the last interval beyond the table's end and for a NaN (a cell is
+    looked up only for a number below the end: a NaN's integer conversion is undefined, and
+    its cell was read out of bounds)."""
     cell = a * inv_cell
     last = row.shape[0] - 2
     if not cell < lut.shape[0]:
