@@ -80,6 +80,20 @@ def test_reconstruct_bad_input(dataset, tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+def test_a_detector_the_triplet_pattern_cannot_search_is_refused_before_any_work(tmp_path, capsys):
+    """The telescope has no UT and SciFi: the default --pattern triplet stops with one line
+    that names --pattern truth, exit 2, and no run directory; --pattern truth reconstructs it."""
+    data = tmp_path / "telescope"
+    assert main(["simulate", "--out", str(data), "--geometry", "telescope", "--generator", "gun", "--events", "3",
+                 "--seed", "4"]) == 0
+    capsys.readouterr()
+    code = main(["reconstruct", str(data), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--pattern truth" in err and "telescope" in err
+    assert not (tmp_path / "r").exists()
+    assert main(["reconstruct", str(data), "--out", str(tmp_path / "r"), "--pattern", "truth"]) == 0
+
+
 def test_gx2f_and_gsf_write_the_same_tables(dataset, tmp_path):
     """--fitter gx2f and --fitter gsf (issue 7) run through the same pipeline and tables."""
     out = tmp_path / "r"

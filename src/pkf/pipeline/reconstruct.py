@@ -49,6 +49,14 @@ def _check_config_against(plan: DatasetPlan, config: ReconstructionConfig) -> No
 
     if config.params is not None or config.pattern == "triplet" or "parametrized" in config.fitters:
         load_parameters(plan.geometry, config.params)  # InputError for a file of another geometry
+    if config.pattern == "triplet":
+        from pkf.seeding.forward.prepare import layout
+
+        try:  # a detector the triplet pattern cannot search (the telescope): say so before any work
+            layout(plan.geometry)
+        except InputError as error:
+            raise InputError(f"{error}; the triplet pattern (the default) cannot search it: "
+                             "reconstruct it with --pattern truth") from None
 
 
 def _tasks(plan: DatasetPlan, config, staging: Path) -> list[PartitionTask]:
