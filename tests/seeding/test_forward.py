@@ -14,7 +14,6 @@ import logging
 import sys
 from pathlib import Path
 
-import numba as nb
 import numpy as np
 import pytest
 
@@ -435,20 +434,11 @@ def test_a_scan_whose_derivatives_overflow_fails(geometry, ext):
     assert np.isfinite(xs[: q.size - 2]).all() and np.isfinite(dxs[: q.size - 2]).all()
 
 
-@nb.njit
-def _hough_lookups(values, hough):
-    out = np.empty((values.size, 2))
-    for i in range(values.size):
-        out[i, 0] = t_of_q(values[i], hough)
-        out[i, 1] = q_of_t(values[i], hough)
-    return out
-
-
 def test_hough_coordinates_of_non_finite_values_stay_in_the_table():
     """t_of_q/q_of_t of NaN is NaN and of ±inf is ±inf, from the last interval: no cell is
     looked up from an undefined integer conversion (they read out of bounds)."""
     hough = hough_grid(1e-7, 3e-3, 1.0 / 1500.0)
-    out = _hough_lookups(np.array([np.nan, np.inf, -np.inf, 1e300, 2e-4]), hough)
+    out = np.array([[t_of_q(v, hough), q_of_t(v, hough)] for v in (np.nan, np.inf, -np.inf, 1e300, 2e-4)])
     assert np.isnan(out[0]).all()
     assert (out[1] == np.inf).all() and (out[2] == -np.inf).all() and (out[3] > 0).all()
     np.testing.assert_allclose(q_of_t(t_of_q(2e-4, hough), hough), 2e-4, rtol=1e-12)
