@@ -88,6 +88,7 @@ def _kf_work(n_fwd: int) -> KFWork:
         ch_hit=np.zeros((n_fwd, MAX_CHILDREN), dtype=np.int64),
         x_init=np.zeros((1, 5)),
         P_init=np.zeros((1, 5, 5)),
+        search_left=ints(),
     )
 
 

@@ -124,7 +124,8 @@ class KFWork(NamedTuple):
     """Scratch of the combinatorial Kalman filter, per depth d (n_fwd rows): predicted and
     filtered deviation states and covariances, the predicted strip coordinate and its
     variance, the χ², hit counts, skips, requirement mask and attach flag of the branch,
-    the children (hits and Δχ²) and the iterator, the path, and the start state."""
+    the children (hits and Δχ²) and the iterator, the path, the start state, and the number
+    of search layers below each depth (the bound of `search.search`)."""
 
     pred_x: np.ndarray
     post_x: np.ndarray
@@ -147,6 +148,7 @@ class KFWork(NamedTuple):
     ch_hit: np.ndarray
     x_init: np.ndarray
     P_init: np.ndarray
+    search_left: np.ndarray
 
 
 class Filter(NamedTuple):

