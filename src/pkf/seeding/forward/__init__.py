@@ -122,7 +122,10 @@ candidates bit for bit), the q/p scans skipping runs of taken hits through links
 candidates) and ``max_clusters`` 3 → 2 (efficiency and ghosts within 0.02 points):
 together −1.5 to −3 % of the forward time at ν = 7.6 (19.53 → 19.23 ms on 200 events,
 19.70 → 19.16 on 100; interleaved against the previous code), none measurable at
-ν = 1. Issue 18.3's profile (perf with a symbol map of the compiled
+ν = 1; a branch and bound in the combinatorial KF (`search.search`: a branch whose best
+possible key cannot rank is not followed; the same candidates bit for bit): SciFi follow
+nodes 27.6 → 19.5 per follow in the first pass at ν = 7.6, the pattern step ×0.970 (50
+events, 8 rounds side by side against the previous code, every round faster). Issue 18.3's profile (perf with a symbol map of the compiled
 kernels, ν = 7.6, 50 events, share of all CPU samples of the pattern step): the scan
 driver with its inlined Hough entries 16 % (two thirds the entry loop: the implied q/p,
 its Hough coordinate's division, the bin table), the combinatorial KF `search.search`
