@@ -122,3 +122,20 @@ def extension_metrics(geometry, result, velo: dict, h: dict, p: dict, m: dict) -
     out["masks"] = {"correct": correct, "ghost": ghost, "is_long": is_long, "p_true": p_true,
                     "n_ut_true": n_ut_true}
     return out
+
+
+def random_reference(n_fwd: int, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A reference for filters on synthetic hits (n_fwd forward layers): the straight
+    trajectory at (x, y) = (300, 200) mm, slopes (0.04, 0.025), 8 GeV, Jacobians near the
+    identity with q/p kept (row 4 = e₄) and 70 mm lever arms, process noise in position and
+    slope. Returns (states (n_fwd, 5), F (n_fwd, 5, 5), Q (n_fwd, 5, 5))."""
+    ref_s = np.tile([300.0, 200.0, 0.04, 0.025, 1.0 / 8000.0], (n_fwd, 1))
+    F = np.tile(np.eye(5), (n_fwd, 1, 1))
+    F[:, :4, :] += rng.normal(scale=[[1e-3, 1e-3, 1e-4, 1e-4, 1.0]] * 4, size=(n_fwd, 4, 5))
+    F[:, 0, 2] += 70.0
+    F[:, 1, 3] += 70.0
+    Q = np.zeros((n_fwd, 5, 5))
+    for j in range(n_fwd):
+        a = rng.normal(size=(4, 4)) * [1e-2, 1e-2, 1e-5, 1e-5]
+        Q[j, :4, :4] = a @ a.T
+    return ref_s, F, Q

@@ -8,6 +8,9 @@ exhaustive search), path, hit counts, χ², state and covariance bit for bit.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -17,25 +20,19 @@ from pkf.seeding.forward.prepare import layout
 from pkf.seeding.forward.records import MODE_OFF, MODE_SEARCH, Filter, Hits, Leaf, Reference, SearchRules
 from pkf.seeding.forward.search import search
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from forward_helpers import random_reference  # noqa: E402
+
 #: the searched layers: the first SciFi station and two layers of the second
 N_SEARCHED = 6
 
 
 def _ambiguous_event(lay, j0, j1, rng):
-    """A filter around a straight reference at (x, y) = (300, 200) mm (Jacobians near the
-    identity, q/p kept, noise in position and slope, a VELO-like prior) and, on each
-    searched layer, the track's hit and two decoys 0.5–3 σ away on either side: many
-    leaves pass the cuts, and the best is not simply the nearest hits."""
+    """A filter around the reference of `forward_helpers.random_reference` with a VELO-like
+    prior and, on each searched layer, the track's hit and two decoys 0.5–3 σ away on
+    either side: many leaves pass the cuts, and the best is not simply the nearest hits."""
     n_fwd = lay.layer.size
-    ref_s = np.tile([300.0, 200.0, 0.04, 0.025, 1.0 / 8000.0], (n_fwd, 1))
-    F = np.tile(np.eye(5), (n_fwd, 1, 1))
-    F[:, :4, :] += rng.normal(scale=[[1e-3, 1e-3, 1e-4, 1e-4, 1.0]] * 4, size=(n_fwd, 4, 5))
-    F[:, 0, 2] += 70.0
-    F[:, 1, 3] += 70.0
-    Q = np.zeros((n_fwd, 5, 5))
-    for j in range(n_fwd):
-        a = rng.normal(size=(4, 4)) * [1e-2, 1e-2, 1e-5, 1e-5]
-        Q[j, :4, :4] = a @ a.T
+    ref_s, F, Q = random_reference(n_fwd, rng)
     u_true = lay.cos * ref_s[:, 0] + lay.sin * ref_s[:, 1]
     u, sigma, offsets = [], [], [0]
     for j in range(n_fwd):

@@ -13,6 +13,9 @@ in the χ².
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -23,6 +26,9 @@ from pkf.seeding.forward.outliers import smooth_ut_chi2
 from pkf.seeding.forward.prepare import layout
 from pkf.seeding.forward.records import Filter, Hits, Leaf, Reference
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from forward_helpers import random_reference  # noqa: E402
+
 
 def _random_filter(lay, rng):
     """A filter over the forward layers of lhcb-like around a straight reference at
@@ -30,17 +36,9 @@ def _random_filter(lay, rng):
     noise in position and slope, a VELO-like prior, and one hit per layer (u = cos α·x +
     sin α·y of the reference plus noise; the UT layers' hits a few σ off on two layers)."""
     n_fwd = lay.layer.size
-    ref_s = np.tile([300.0, 200.0, 0.04, 0.025, 1.0 / 8000.0], (n_fwd, 1))
-    F = np.tile(np.eye(5), (n_fwd, 1, 1))
-    F[:, :4, :] += rng.normal(scale=[[1e-3, 1e-3, 1e-4, 1e-4, 1.0]] * 4, size=(n_fwd, 4, 5))
-    F[:, 0, 2] += 70.0
-    F[:, 1, 3] += 70.0
+    ref_s, F, Q = random_reference(n_fwd, rng)
     F[:, 0, 4] += 5e5
     F[:, 2, 4] += 0.3
-    Q = np.zeros((n_fwd, 5, 5))
-    for j in range(n_fwd):
-        a = rng.normal(size=(4, 4)) * [1e-2, 1e-2, 1e-5, 1e-5]
-        Q[j, :4, :4] = a @ a.T
     sigma = lay.sigma
     u_true = lay.cos * ref_s[:, 0] + lay.sin * ref_s[:, 1]
     u = u_true + rng.normal(size=n_fwd) * sigma
