@@ -147,13 +147,12 @@ def main() -> None:
     stages = {nu: Stage(geometry, ext, _sample(geometry, args.events, nu, args.seed)["h"]) for nu in args.pileups}
     names = (*PARTS, "forward")
     best = {nu: dict.fromkeys(names, np.inf) for nu in args.pileups}
-    for round_ in range(args.repeat + 1):  # the first round compiles or loads the kernels
+    for round_ in range(args.repeat + 1):
         for nu, stage in stages.items():
-            for i, name in enumerate(PARTS):
-                t = stage.part(i)
-                best[nu][name] = min(best[nu][name], t) if round_ else best[nu][name]
-            t = stage.forward()
-            best[nu]["forward"] = min(best[nu]["forward"], t) if round_ else best[nu]["forward"]
+            times = [stage.part(i) for i in range(len(PARTS))] + [stage.forward()]
+            if round_:  # round 0 compiles or loads the kernels
+                for name, t in zip(names, times):
+                    best[nu][name] = min(best[nu][name], t)
 
     rows = []
     print("UT stage (step 1) per VELO track, µs (CPU, best of repeat); forward: the whole extension")
