@@ -2,15 +2,14 @@
 
 Simulates lhcb-like minimum-bias events at each pile-up, finds the VELO tracks
 (`pkf.seeding.velo_search.find_velo_tracks`), prepares the forward extension's inputs as
-`pkf.seeding.forward.extend_velo_tracks` does, and times compiled loops over all VELO
+`pkf.seeding.forward.extend_velo_tracks` does (`kernel_setup`), and times compiled loops over all VELO
 tracks that run step 1 of the forward extension in parts (CPU time, best of --repeat,
 after JIT warm-up; pile-up values interleaved):
 
 - ``reference``: one reference trajectory VELO → last UT layer (`kalman.reference`, q/p = 0);
 - ``start``: `ut.ut_start` (two reference trajectories and two fits through the UT without
   hits: the start state given q/p and its conditional covariance);
-- ``search``: ``start`` + the UT search (`search.search` over the UT layers, the rules of
-  `ut.ut_candidates`);
+- ``search``: ``start`` + the UT search (`ut.ut_search`);
 - ``candidates``: ``start`` + `ut.ut_candidates` (the search and the refit of its leaves);
 
 and the whole forward extension for comparison. Prints µs per VELO track and ms per
@@ -36,27 +35,11 @@ from pattern_recognition import _sample
 from pkf.geometry import load_geometry
 from pkf.jit import NO_REFCOUNT
 from pkf.params.parameter_set import shipped_parameters
-from pkf.params.ut_to_scifi import without_soft_range
-from pkf.seeding.forward import extend_velo_tracks
-from pkf.seeding.forward.kalman import reference, velo_prior
-from pkf.seeding.forward.kernel import _valid_state, new_pass_work, new_work
-from pkf.seeding.forward.options import (
-    I_MAX_NODES,
-    I_QUAD,
-    I_UT_BRANCH,
-    I_UT_CANDIDATES,
-    I_UT_FIRST,
-    I_UT_MIN,
-    O_MODEL,
-    O_QMAX,
-    O_UT_NSIG,
-    O_UT_QPRIOR,
-    ForwardOptions,
-)
-from pkf.seeding.forward.prepare import prepare
-from pkf.seeding.forward.records import Hits, Inputs, SearchRules, Track, Transport
-from pkf.seeding.forward.search import search
-from pkf.seeding.forward.ut import _search_ut, ut_candidates, ut_start
+from pkf.seeding.forward import ForwardOptions, extend_velo_tracks, kernel_setup
+from pkf.seeding.forward.kalman import reference
+from pkf.seeding.forward.kernel import _valid_state
+from pkf.seeding.forward.records import Hits, Track
+from pkf.seeding.forward.ut import ut_candidates, ut_search, ut_start
 from pkf.seeding.velo_search import find_velo_tracks
 
 PARTS = ("reference", "start", "search", "candidates")
@@ -67,8 +50,6 @@ def _ut_parts(tr, lay, cfg, w, pw, inp, part):
     """Step 1 of every track of inp up to `PARTS`[part]; returns the UT leaves or candidates found."""
     t_ev, t_state, t_layer, lay_off, hu, hsig = inp
     top_ut, utc, start, s_v, ut_best, _, _, used = pw
-    opt, iopt = cfg.opt, cfg.iopt
-    n_ut = lay.n_ut
     found = 0
     for t in range(t_ev.shape[0]):
         hits = Hits(lay_off[t_ev[t]], hu, hsig, used)
@@ -79,17 +60,12 @@ def _ut_parts(tr, lay, cfg, w, pw, inp, part):
         if not _valid_state(track.a, s_v):
             continue
         if part == 0:
-            reference(tr, lay, w.filt.ref, track.a, n_ut, track.s_v, 0.0, 0.0)
+            reference(tr, lay, w.filt.ref, track.a, lay.n_ut, track.s_v, 0.0, 0.0)
             continue
         if not ut_start(tr, lay, hits, cfg, w, track, start):
             continue
         if part == 2:
-            _search_ut(w.filt, lay)
-            velo_prior(opt, opt[O_QMAX], opt[O_UT_QPRIOR], w.filt.P0)
-            rules = SearchRules(opt[O_UT_NSIG], iopt[I_UT_FIRST], iopt[I_UT_BRANCH], n_ut - iopt[I_UT_MIN],
-                                iopt[I_UT_MIN], True, 0, cfg.cuts.ut_prune, iopt[I_MAX_NODES], 1e6, -1, 0.0, 1.0)
-            search(0, n_ut, w.filt, hits, lay, rules, w.leaf_b, top_ut)
-            found += top_ut.count[0]
+            found += ut_search(lay, hits, cfg, w, top_ut)
         elif part == 3:
             found += ut_candidates(tr, lay, hits, cfg, w, track, top_ut, utc, ut_best)
     return found
@@ -106,19 +82,9 @@ class Stage:
                                      np.column_stack([h["sigma_u"], h["sigma_v"]]), geometry)
         v = self.velo
         self.state = np.column_stack([v.x, v.y, v.tx, v.ty])
-        table_ext = ext._replace(uts_meta=without_soft_range(ext.uts_meta))
-        prep = prepare(v.event_id, self.state, v.z, h["event_id"], h["layer"], h["u"], h["sigma_u"], geometry,
-                       table_ext, ForwardOptions())
-        cfg, lay = prep.cfg, prep.lay
+        prep, self.args = kernel_setup(v.event_id, self.state, v.z, h["event_id"], h["layer"], h["u"], h["sigma_u"],
+                                       geometry, ext, ForwardOptions())
         self.n_tracks = prep.n_tracks
-        self.args = (
-            Transport(table_ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)),
-                      float(cfg.opt[O_MODEL])),
-            lay, cfg,
-            new_work(lay, cfg, prep.max_entries, prep.max_bins, prep.hit_u.size),
-            new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), prep.n_tracks, prep.hit_u.size),
-            Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma),
-        )
 
     def part(self, index: int) -> float:
         c = time.process_time()

@@ -241,6 +241,32 @@ def _new_output(n: int, n_fwd: int, n_ut: int) -> Output:
     )
 
 
+def kernel_setup(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry: Geometry, ext,
+                 options: ForwardOptions):
+    """The inputs of the forward extension's kernels (arguments as `extend_velo_tracks`):
+    the prepared layout, hits and cut tables (`prepare`), and (tr, lay, cfg, w, pw, inputs):
+    `Transport`, `Layout`, the option vectors, `Work`, `PassWork` and `Inputs`, or None
+    without tracks or events."""
+    # The search reads the UT→SciFi table as one of p ≥ p_min (3 GeV) continued below it,
+    # as it was tuned: with the soft range 1.5–3 GeV its 2–5 GeV long efficiency at ν = 7.6
+    # fell from 95.2 to 93.6 % (benchmarks/pattern_recognition.py, 100 events). The fits
+    # use the whole table.
+    ext = ext._replace(uts_meta=without_soft_range(ext.uts_meta))
+    prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext, options)
+    n = prep.n_tracks
+    if not (n and prep.n_events):
+        return prep, None
+    cfg = prep.cfg
+    tr = Transport(
+        ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)), float(cfg.opt[O_MODEL])
+    )
+    lay = prep.lay
+    pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
+    inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
+    w = new_work(lay, cfg, prep.max_entries, prep.max_bins, prep.hit_u.size)
+    return prep, (tr, lay, cfg, w, pw, inputs)
+
+
 def extend_velo_tracks(
     track_event,
     velo_state,
@@ -269,25 +295,13 @@ def extend_velo_tracks(
         options = ForwardOptions(**overrides)
     elif overrides:
         options = ForwardOptions(**(asdict(options) | overrides))
-    # The search reads the UT→SciFi table as one of p ≥ p_min (3 GeV) continued below it,
-    # as it was tuned: with the soft range 1.5–3 GeV its 2–5 GeV long efficiency at ν = 7.6
-    # fell from 95.2 to 93.6 % (benchmarks/pattern_recognition.py, 100 events). The fits
-    # use the whole table.
-    ext = ext._replace(uts_meta=without_soft_range(ext.uts_meta))
-    prep = prepare(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext, options)
+    prep, args = kernel_setup(track_event, velo_state, z_state, hit_event, hit_layer, hit_u, hit_sigma, geometry, ext,
+                              options)
     n = prep.n_tracks
     out = _new_output(n, prep.lay.layer.size, prep.lay.n_ut)
-    if n and prep.n_events:
-        cfg = prep.cfg
-        tr = Transport(
-            ext, prep.poly, prep.table_ref, bool(cfg.iopt[I_QUAD] != 0), np.zeros((6, 5, 5)), float(cfg.opt[O_MODEL])
-        )
-        lay = prep.lay
-        pw = new_pass_work(lay.layer.size, lay.n_ut, int(cfg.iopt[I_UT_CANDIDATES]), n, prep.hit_u.size)
-        inputs = Inputs(prep.t_ev, prep.state, prep.t_layer, prep.lay_off, prep.hit_u, prep.hit_sigma)
-        w = new_work(lay, cfg, prep.max_entries, prep.max_bins, prep.hit_u.size)
-        extend_kernel(tr, lay, cfg, w, pw, inputs, out)
-        upstream_pass(tr, lay, cfg, w, pw, inputs, out, np.full(prep.hit_u.size, -1, dtype=np.int64))
+    if args is not None:
+        extend_kernel(*args, out)
+        upstream_pass(*args, out, np.full(prep.hit_u.size, -1, dtype=np.int64))
     found = out.hits >= 0
     counts = found.sum(axis=1)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

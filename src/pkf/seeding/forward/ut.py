@@ -163,22 +163,33 @@ def _insert_ut_candidate(utc, n_utc, c, n_c, chi_c, q_c, v_c, cfg, w, n_ut):
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
-def ut_candidates(tr, lay, hits, cfg, w, track, top_ut, utc, ut_best):
-    """Step 1: the UT search around q/p = 0 (noise of 1/p_min) into top_ut (`Ranked`),
-    each leaf re-fitted around its own q/p; those passing the UT χ² cut are the UT
-    candidates utc, best first. ut_best: the UT hits of the best (−1 none). Returns the
-    number of candidates. Expects w.filt.ref at q/p = 0 and w.filt.x0 = 0 (`ut_start`)."""
+def ut_search(lay, hits, cfg, w, top_ut):
+    """The UT search of step 1: the combinatorial KF over the UT layers around q/p = 0 with
+    the q/p prior ut_q_prior/p_min, its best leaves into top_ut (`Ranked`, most hits first).
+    Returns their number. Expects w.filt.ref at q/p = 0 and w.filt.x0 = 0 (`ut_start`)."""
     opt, iopt = cfg.opt, cfg.iopt
     filt = w.filt
     n_ut = lay.n_ut
-    n_fwd = lay.layer.shape[0]
-    ut_cut = cfg.cuts.ut
     _search_ut(filt, lay)
     velo_prior(opt, opt[O_QMAX], opt[O_UT_QPRIOR], filt.P0)
     rules = SearchRules(opt[O_UT_NSIG], iopt[I_UT_FIRST], iopt[I_UT_BRANCH], n_ut - iopt[I_UT_MIN],
                         iopt[I_UT_MIN], True, 0, cfg.cuts.ut_prune, iopt[I_MAX_NODES], 1e6, -1, 0.0, 1.0)
     search(0, n_ut, filt, hits, lay, rules, w.leaf_b, top_ut)
-    n_leaves = top_ut.count[0]
+    return top_ut.count[0]
+
+
+@nb.njit(cache=True, **NO_REFCOUNT)
+def ut_candidates(tr, lay, hits, cfg, w, track, top_ut, utc, ut_best):
+    """Step 1: the UT search around q/p = 0 (noise of 1/p_min, `ut_search`) into top_ut
+    (`Ranked`), each leaf re-fitted around its own q/p; those passing the UT χ² cut are the UT
+    candidates utc, best first. ut_best: the UT hits of the best (−1 none). Returns the
+    number of candidates. Expects w.filt.ref at q/p = 0 and w.filt.x0 = 0 (`ut_start`)."""
+    iopt = cfg.iopt
+    filt = w.filt
+    n_ut = lay.n_ut
+    n_fwd = lay.layer.shape[0]
+    ut_cut = cfg.cuts.ut
+    n_leaves = ut_search(lay, hits, cfg, w, top_ut)
     q0_ref = filt.ref.s[n_ut - 1, 4]
     for j in range(n_fwd):
         ut_best[j] = top_ut.paths[0, j] if (n_leaves > 0 and j < n_ut) else -1
