@@ -120,6 +120,9 @@ def simulate(out: Path, overwrite: bool, **options) -> None:
               type=FloatRange(min=0.0, max=MAX_MERGE_FACTOR),
               help="GSF smoothing: merge the closest pairs of the products that share a component of the more "
                    "precise filter first, down to this many times --max-components components (0: all at once).")
+@click.option("--gsf-mixture-smoothing-everywhere", is_flag=True,
+              help="GSF: smooth with the product of the forward and backward mixtures at every node, not only "
+                   "at the first and last (the written states); slower, the same method at every node.")
 @click.option("--track-states", is_flag=True,
               help="Also write the track_states table: every node's predicted, filtered and smoothed "
                    "state, residuals and χ² (large: ~3 rows per hit and fitter).")
@@ -145,7 +148,8 @@ def reconstruct(dataset: Path, out: Path, fitters: tuple[str, ...], workers: int
     kalman = KalmanOptions(options.pop("iterations"), options.pop("smoother"), options.pop("hypothesis"))
     gx2f = GX2FOptions(max_updates=options.pop("gx2f_max_updates"))
     gsf = GSFOptions(options.pop("max_components"), options.pop("gsf_weight_cut"), options.pop("gsf_output"),
-                     options.pop("gsf_sibling_merge"), options.pop("gsf_product_merge"))
+                     options.pop("gsf_sibling_merge"), options.pop("gsf_product_merge"),
+                     options.pop("gsf_mixture_smoothing_everywhere"))
     config = ReconstructionConfig(fitters=fitters or ("parametrized",), kalman=kalman, gx2f=gx2f, gsf=gsf, **options)
     run = run_reconstruction(dataset, out, config, overwrite=overwrite, workers=workers, scheduler=scheduler,
                              events_per_batch=events_per_batch, echo=lambda line: click.echo(line, err=True))

@@ -1,6 +1,7 @@
 """The Gaussian-sum filter (issue 7): equals the Kalman fit without bremsstrahlung,
 improves electron fits where the detector can see the radiation, calibrated posteriors."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,12 @@ def _fit_both(geometry, seed):
     return sample, kalman, gsf, (kalman.status == 0) & (gsf.status == 0)
 
 
+def _smoothing_everywhere(options=None):
+    """FitOptions whose GSF smooths with the mixture product at every node."""
+    options = options or FitOptions()
+    return replace(options, gsf=replace(options.gsf, mixture_smoothing_everywhere=True))
+
+
 def material_in_the_field():
     """The telescope with 3 % X0 planes in 2 T: 0.3 X0 across the 1 m where the momentum is
     measured, the material budget and field of a silicon tracker like ATLAS's."""
@@ -96,6 +103,55 @@ def material_in_the_field():
 def lhcb_electrons():
     sample, kalman, gsf, ok = _fit_both(load_geometry("lhcb-like"), 4)
     return sample, kalman, gsf, ok & sample.long_tracks()
+
+
+@pytest.fixture(scope="module")
+def lhcb_electrons_smoothed_everywhere(lhcb_electrons):
+    """The GSF of `lhcb_electrons` with the mixture product at every node."""
+    sample = lhcb_electrons[0]
+    return fit_batch_gsf(gsf_extrapolator(sample.geometry), sample.batch, _smoothing_everywhere(), sample.seeds,
+                         sample.seed_covs, sample.beamline, keep_qop_mixtures=True)
+
+
+def test_smoothing_at_the_written_nodes_changes_only_outlier_decisions(lhcb_electrons,
+                                                                      lhcb_electrons_smoothed_everywhere):
+    """The default smoothing (the mixture product at the first and last node only, module
+    docstring "Smoothing at the written nodes") against the mixture product at every node: a
+    track whose outlier removals are the same has bitwise the same written states, χ² and
+    kept first-node q/p mixture; other outlier removals on a few tracks (1.5 % of 1,500 measured,
+    < 5 % here) and the first- and last-hit q/p pulls unchanged (RMS within 0.02, share within
+    ±1.2 within 0.01)."""
+    sample, _, new, _ = lhcb_electrons
+    old = lhcb_electrons_smoothed_everywhere
+    both = (new.status == 0) & (old.status == 0)
+    assert both.sum() > 900
+    node_flags = np.add.reduceat(~new.node_active != ~old.node_active, sample.batch.offsets[:-1])
+    same = both & (node_flags == 0)
+    assert same.sum() >= 0.95 * both.sum()
+    first = sample.batch.offsets[:-1]
+    for name in ("first_hit", "last_hit", "beamline"):
+        np.testing.assert_array_equal(new.locations[name][1][same], old.locations[name][1][same])
+        np.testing.assert_array_equal(new.locations[name][2][same], old.locations[name][2][same])
+    np.testing.assert_array_equal(new.chi2[same], old.chi2[same])
+    np.testing.assert_array_equal(new.qop_mixture[first[same]], old.qop_mixture[first[same]])
+    for location in ("first_hit", "last_hit"):
+        pulls = [_location(sample, r, location, both)[1] for r in (new, old)]
+        assert abs(np.sqrt(np.mean(pulls[0] ** 2)) - np.sqrt(np.mean(pulls[1] ** 2))) < 0.02
+        assert abs(np.mean(np.abs(pulls[0]) < 1.2) - np.mean(np.abs(pulls[1]) < 1.2)) < 0.01
+
+
+def test_smoothing_at_the_written_nodes_is_exact_for_one_component():
+    """Pions (no bremsstrahlung, one component): every node state bitwise the mixture product's."""
+    geometry = load_geometry("lhcb-like")
+    sample = TruthSample(geometry, events=20, seed=5, particles=10, p_min=2000.0, p_max=100000.0,
+                         eta_min=2.0, eta_max=5.0)
+    ctx = gsf_extrapolator(geometry, mass=MASS_PION)
+    new = fit_batch_gsf(ctx, sample.batch, FitOptions(), sample.seeds, sample.seed_covs)
+    old = fit_batch_gsf(ctx, sample.batch, _smoothing_everywhere(), sample.seeds, sample.seed_covs)
+    assert np.mean(new.status == 0) > 0.95
+    np.testing.assert_array_equal(new.node_state, old.node_state)
+    np.testing.assert_array_equal(new.node_cov, old.node_cov)
+    np.testing.assert_array_equal(new.n_outliers, old.n_outliers)
 
 
 @pytest.fixture(scope="module")
@@ -171,14 +227,15 @@ def test_electrons_in_the_built_in_telescope(telescope_electrons):
     assert gaussian_core(dp_g).sigma < 1.05 * gaussian_core(dp_k).sigma
 
 
-def test_electrons_lhcb_like_where_the_magnet_measures(lhcb_electrons):
+def test_electrons_lhcb_like_where_the_magnet_measures(lhcb_electrons, lhcb_electrons_smoothed_everywhere):
     """lhcb-like: the momentum is measured in the magnet, which holds no material. At the
     last UT hit (the state entering the magnet) there is no radiation left to model, and
     the GSF equals the Kalman fit: Gaussian cores of δp/p within ±10 % (measured 0.92–1.02
     on six samples), q/p pull core in [0.9, 1.2] (0.93–1.00) and a calibrated posterior
     (Φ⁻¹(PIT) width in [0.9, 1.1]; 0.94–1.00). Issue 7's "≥ 10 % narrower" cannot hold here."""
-    sample, kalman, gsf, ok = lhcb_electrons
-    ok = ok & (_nodes(sample, "last_ut_hit") >= 0)
+    sample, kalman, _, ok = lhcb_electrons
+    gsf = lhcb_electrons_smoothed_everywhere  # the mixture posterior at the last UT hit
+    ok = ok & (gsf.status == 0) & (_nodes(sample, "last_ut_hit") >= 0)
     assert ok.sum() > 900
     dp_k, _ = _location(sample, kalman, "last_ut_hit", ok)
     dp_g, pull_g, pit = _location(sample, gsf, "last_ut_hit", ok)

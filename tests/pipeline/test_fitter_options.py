@@ -48,11 +48,11 @@ def test_gx2f_and_gsf_options_reach_their_fitters(tmp_path, capsys):
     assert main(["reconstruct", str(data), "--out", str(tmp_path / "default"), *common]) == 0
     assert main(["reconstruct", str(data), "--out", str(tmp_path / "tuned"), *common, "--gx2f-max-updates", "1",
                  "--gsf-output", "mean", "--gsf-weight-cut", "0.01", "--gsf-sibling-merge", "0",
-                 "--gsf-product-merge", "0"]) == 0
+                 "--gsf-product-merge", "0", "--gsf-mixture-smoothing-everywhere"]) == 0
     config = json.loads((tmp_path / "tuned" / "run.json").read_text())["config"]
     assert config["gx2f"]["max_updates"] == 1
     assert config["gsf"] == {"max_components": 12, "weight_cut": 0.01, "output": "mean", "sibling_merge": 0.0,
-                             "product_merge": 0.0}
+                             "product_merge": 0.0, "mixture_smoothing_everywhere": True}
     for fitter in ("gx2f", "gsf"):
         default, tuned = _states(tmp_path / "default", fitter), _states(tmp_path / "tuned", fitter)
         assert default.shape == tuned.shape and not np.allclose(default, tuned), fitter

@@ -143,6 +143,43 @@ and the product is reduced like any mixture — the GSF analogue of the Kalman c
 component exactly that). At the last node the smoothed mixture *is* the forward
 filtered one, which is used as it is.
 
+Smoothing at the written nodes (issue 18.2). The mixture product above is made where a
+state is written: at the first node (the first-hit and beamline states) and the last (free),
+and at every node with `GSFOptions.mixture_smoothing_everywhere`
+(``--gsf-mixture-smoothing-everywhere``), or where `track_states` or the kept q/p mixtures
+ask for it. At the other nodes the state serves the outlier search only (`find_outlier`'s
+node χ²), and it is the product of the more precise filter's mixture (the smaller mean q/p
+variance, `_qop_variance`, as the product families above) with the other filter's mixture
+collapsed to one Gaussian (`_combine_moments`): ≤ 12 pairs and no reduction instead of ≤ 144
+pairs, ~61 products and two reductions. Fits of one component (no bremsstrahlung, VELO-only
+tracks) are bitwise those of the mixture product at every node; so are the written states of
+every track whose outlier removals are the same. `track_states` and the kept mixtures take the
+mixture product at every node for what they keep, but the outlier search takes the same node
+states as without them, so that they change no result. Measured (2026-12-07, both ways in one
+process, `max_outliers` 2):
+
+- CPU time: ×0.709 (`benchmarks/side_by_side.py --workload gsf --events 60 --rounds 6`
+  against 039a7a5, 571 lhcb-like electrons, 12 components: medians 3.59 → 2.64 ms per track
+  on a slow machine state, every round ×0.66–0.79); the electron gun below ×0.705, the
+  minimum-bias truth tracks ×0.730. The mixture product at every node had been ~40 % of the
+  fit (an ablation writing the collapsed forward prediction at those nodes instead: ×0.61).
+- lhcb-like electron gun 2–50 GeV (seed 7, 1,500 truth tracks): 22 tracks (1.5 %) have other
+  outlier removals (130 instead of 137 hits) and other written states; every other track's
+  states and χ² are bitwise equal. q/p pulls and δp/p (`benchmarks/electron_fits.py`'s
+  summary): first hit pull RMS 0.989 both, core 0.677 → 0.669, δp/p core 14.78 → 14.84 %;
+  beamline RMS 1.023 both; last hit RMS 2.187 both, within ±1.2 0.899 both, δp/p central 68 %
+  14.95 → 14.96 %.
+- minimum bias ν = 7.6 (seed 31, 15 events, 4,158 truth tracks, fitted as electrons): 143
+  tracks (3.4 %) differ; outliers 418 → 316 hits, all of them the particle's own hits here;
+  χ²/ndf median 0.905 → 0.909.
+- minimum bias ν = 7.6 through the triplet pattern (`pkf reconstruct --fitter gsf
+  --track-states`, 12 events, 3,749 tracks): outliers removed on real tracks 78 foreign +
+  230 own hits → 73 foreign + 194 own; foreign hits left on real tracks 785 → 790 of ~89,400;
+  χ²/ndf median real 0.923 → 0.924, ghosts 1.012 → 1.009.
+- The node states between (not written) are the collapsed approximation: at the last UT hit
+  the δp/p core is 0.366 % instead of the mixture product's 0.310 % (`tests/fit/test_gsf.py`
+  judges the mixture smoother there with the option on).
+
 Two priors that are not measurements (measured with the probability integral transform,
 PIT = CDF of the smoothed q/p mixture at the true q/p, which is uniform and whose
 Φ⁻¹-transform has unit width for a calibrated posterior; `qop_mixture_cdf`):
@@ -469,6 +506,7 @@ class GsfExtrapolator(NamedTuple):
     product_target: int
     bh_shared_t_tolerance: float
     jacobian_share_kick: float
+    mixture_smoothing_everywhere: bool
 
 
 def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool | None = None,
@@ -494,7 +532,8 @@ def gsf_extrapolator(geometry, mass: float = MASS_ELECTRON, bethe_heitler: bool 
                            float(mixture.t_max), bool(bethe_heitler), defaults.max_components,
                            defaults.weight_cut, OUTPUTS[defaults.output], bool(share_jacobians),
                            float(seed_qop_fraction), float(peak_window), sibling_target(defaults),
-                           product_target(defaults), float(bh_shared_t_tolerance), float(jacobian_share_kick))
+                           product_target(defaults), float(bh_shared_t_tolerance), float(jacobian_share_kick),
+                           bool(defaults.mixture_smoothing_everywhere))
 
 
 def sibling_target(options: GSFOptions) -> int:
@@ -1669,6 +1708,27 @@ def _combine(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pve
     return _summarise(ctx, pw, pmu, pcov, m, nearest, moments, out_mean, out_cov, family)
 
 
+@nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
+def _combine_moments(ctx, fw, fmu, fcov, nf, bw, bmu, bcov, nb_, buf, pbuf, nearest, moments, out_mean, out_cov,
+                     scratch, vec):
+    """The smoothed state at a node from the more precise filter's mixture and the other's
+    moments: the product (`_combine`) of the mixture of the filter with the smaller mean
+    q/p variance (`_qop_variance`, as `_combine`'s families) and the other filter's mixture
+    collapsed to one Gaussian (kept in slot 0 of buf[3:6], the material's scratch, free
+    between transports), into pbuf[0:3] and the output state. Returns the product's component
+    count (0 on failure)."""
+    w1, mu1, cov1 = buf[3], buf[4], buf[5]
+    pw, pmu, pcov, plu, pvec = pbuf
+    w1[0] = 1.0
+    if _qop_variance(bw, bcov, nb_) < _qop_variance(fw, fcov, nf):
+        _collapse(fw, fmu, fcov, nf, mu1[0], cov1[0])
+        return _combine(ctx, w1[0:1], mu1[0:1], cov1[0:1], 1, bw, bmu, bcov, nb_, pw, pmu, pcov, plu, pvec,
+                        nearest, moments, out_mean, out_cov, scratch, vec)
+    _collapse(bw, bmu, bcov, nb_, mu1[0], cov1[0])
+    return _combine(ctx, fw, fmu, fcov, nf, w1[0:1], mu1[0:1], cov1[0:1], 1, pw, pmu, pcov, plu, pvec,
+                    nearest, moments, out_mean, out_cov, scratch, vec)
+
+
 @nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
 def _qop_variance(w, cov, n):
     """Σ w_c·v_c / Σ w_c: the components' mean q/p variance (weighted)."""
@@ -1857,18 +1917,28 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             if nc == 0:
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
         if k < n - 1:
-            n_first = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov, plu, pvec,
-                               nearest, moments, out_state[k], out_cov[k], scratch, vec)
-            if n_first == 0:
-                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
-            if qop_prior_kind == QOP_PRIOR_ONLY:
-                n_first = _prior_qop_block(fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], pw, pmu, pcov,
-                                           out_state[k], out_cov[k])
-            _second_moment(pw, pmu, pcov, n_first, out_state[k], out_mixture_cov[k])
-            if keep:
-                _keep_qop_mixture(pw, pmu, pcov, n_first, out_mix[k])
-            if keep_stages:
-                _collapse(pw, pmu, pcov, n_first, stages.smoothed[lo + k], stages.smoothed_cov[lo + k])
+            product = (k == 0 or ctx.mixture_smoothing_everywhere or qop_prior_kind == QOP_PRIOR_ONLY
+                       or fwd_n[k] * nc == 1)
+            if product or keep or keep_stages:
+                n_node = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
+                                  plu, pvec, nearest, moments, out_state[k], out_cov[k], scratch, vec)
+                if n_node == 0:
+                    return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+                if qop_prior_kind == QOP_PRIOR_ONLY:
+                    n_node = _prior_qop_block(fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], pw, pmu, pcov,
+                                              out_state[k], out_cov[k])
+                if k == 0:
+                    n_first = n_node
+                if keep:
+                    _keep_qop_mixture(pw, pmu, pcov, n_node, out_mix[k])
+                if keep_stages:
+                    _collapse(pw, pmu, pcov, n_node, stages.smoothed[lo + k], stages.smoothed_cov[lo + k])
+            if not product:  # the more precise filter's mixture times the other's moments (module docstring)
+                n_node = _combine_moments(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, buf, pbuf,
+                                          nearest, moments, out_state[k], out_cov[k], scratch, vec)
+                if n_node == 0:
+                    return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+            _second_moment(pw, pmu, pcov, n_node, out_state[k], out_mixture_cov[k])
         for i in range(5):
             if not (out_cov[k, i, i] > 0.0 and math.isfinite(out_state[k, i])):
                 return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
@@ -2020,7 +2090,8 @@ def fit_batch_gsf(extrapolator: GsfExtrapolator, batch, options, seeds: np.ndarr
     mixture = options.gsf
     ctx = extrapolator._replace(max_components=int(mixture.max_components), weight_cut=float(mixture.weight_cut),
                                 output=OUTPUTS[mixture.output], sibling_target=sibling_target(mixture),
-                                product_target=product_target(mixture))
+                                product_target=product_target(mixture),
+                                mixture_smoothing_everywhere=bool(mixture.mixture_smoothing_everywhere))
     stages = node_stages(batch.z.size if track_states else 0, smoothed=True)
     velo_only = None if batch.track_type is None else batch.track_type == TRACK_VELO
     qop_prior = None if batch.track_type is None else np.where(

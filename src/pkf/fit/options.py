@@ -78,13 +78,18 @@ class GSFOptions:
     `sibling_merge`·`max_components` components remain, then the closest pairs of all
     (0: all of them at once, the previous reduction; `pkf.fit.gsf`, "Reduction after a
     convolution"); in the smoothing, the products that share a component of the more precise
-    filter likewise, down to `product_merge`·`max_components` (0: off)."""
+    filter likewise, down to `product_merge`·`max_components` (0: off). The mixtures'
+    product is the smoothed state at the first and last node (the written states), and at
+    every node with `mixture_smoothing_everywhere`; elsewhere the node's state (for the
+    outlier search) is the product of the more precise filter's mixture with the other's
+    moments (`pkf.fit.gsf`, "Smoothing at the written nodes")."""
 
     max_components: int = 12
     weight_cut: float = 1e-4
     output: str = "core"
     sibling_merge: float = 3.5
     product_merge: float = 2.0
+    mixture_smoothing_everywhere: bool = False
 
     def __post_init__(self):
         if self.max_components < 1:
