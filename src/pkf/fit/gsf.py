@@ -1820,6 +1820,15 @@ def _prior_qop_block(fw, fmu, fcov, nf, pw, pmu, pcov, out_mean, out_cov):
     return 1
 
 
+@nb.njit(cache=True, inline="always", **NO_REFCOUNT)
+def _valid_node_state(state, cov):
+    """Whether a node's output state is finite and its variances positive."""
+    for i in range(5):
+        if not (cov[i, i] > 0.0 and math.isfinite(state[i])):
+            return False
+    return True
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, fwd_mu, fwd_cov, fwd_n,
                buf, pbuf, count, nearest, moments, scratch, bh, vec, out_state, out_cov, out_mix,
@@ -1936,12 +1945,14 @@ def _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, fwd_w, 
             if not product:  # the more precise filter's mixture times the other's moments (module docstring)
                 n_node = _combine_moments(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, buf, pbuf,
                                           nearest, moments, out_state[k], out_cov[k], scratch, vec)
-                if n_node == 0:
-                    return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+                if n_node == 0 or not _valid_node_state(out_state[k], out_cov[k]):  # the mixtures' product then
+                    n_node = _combine(ctx, fwd_w[k], fwd_mu[k], fwd_cov[k], fwd_n[k], w, mu, cov, nc, pw, pmu, pcov,
+                                      plu, pvec, nearest, moments, out_state[k], out_cov[k], scratch, vec)
+                    if n_node == 0:
+                        return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
             _second_moment(pw, pmu, pcov, n_node, out_state[k], out_mixture_cov[k])
-        for i in range(5):
-            if not (out_cov[k, i, i] > 0.0 and math.isfinite(out_state[k, i])):
-                return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
+        if not _valid_node_state(out_state[k], out_cov[k]):
+            return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
     if not math.isfinite(chi2):
         return STATUS_NOT_POSITIVE_DEFINITE, chi2, 0
     return STATUS_OK, chi2, n_first
