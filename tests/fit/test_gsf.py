@@ -140,6 +140,29 @@ def test_smoothing_at_the_written_nodes_changes_only_outlier_decisions(lhcb_elec
         assert abs(np.mean(np.abs(pulls[0]) < 1.2) - np.mean(np.abs(pulls[1]) < 1.2)) < 0.01
 
 
+def test_a_node_where_the_product_with_moments_fails_takes_the_mixtures_product():
+    """A minimum-bias track (ν = 7.6, seed 31, 15 events, truth track 1958; recorded) on which
+    the product with the other filter's moments failed at a node (status "not positive
+    definite", 7b6c52b) while the mixtures' product fits it: that node takes the mixtures'
+    product, and the fit is the one with the product at every node."""
+    from pkf.fit.candidates import Candidates
+    from pkf.fit.tracks import TrackBatch
+
+    data = np.load(Path(__file__).parent / "data" / "gsf_moments_product_fails.npz")
+    geometry = load_geometry("lhcb-like")
+    rows = np.arange(data["layer"].size)
+    candidates = Candidates.from_hit_lists(np.zeros(rows.size), np.zeros(rows.size), rows)
+    batch = TrackBatch.from_candidates(geometry, candidates, data["layer"], data["m"][:, 0], data["m"][:, 1],
+                                       data["sigma"][:, 0], data["sigma"][:, 1])
+    ctx = gsf_extrapolator(geometry)
+    fits = [fit_batch_gsf(ctx, batch, options, data["seed"][None], data["seed_cov"][None])
+            for options in (FitOptions(), _smoothing_everywhere())]
+    assert [list(f.status) for f in fits] == [[0], [0]]
+    assert fits[0].chi2[0] == fits[1].chi2[0]
+    for name in ("first_hit", "last_hit"):
+        np.testing.assert_array_equal(fits[0].locations[name][1], fits[1].locations[name][1])
+
+
 def test_smoothing_at_the_written_nodes_is_exact_for_one_component():
     """Pions (no bremsstrahlung, one component): every node state bitwise the mixture product's."""
     geometry = load_geometry("lhcb-like")
