@@ -82,3 +82,20 @@ class TruthSample:
             in_station = (sub == 2) & (g.layer_station[self.batch.layer] == station)
             ok &= np.bincount(track, weights=in_station, minlength=self.batch.n_tracks) >= 2
         return ok
+
+
+def recorded_track(name: str):
+    """(geometry, a TrackBatch of the one track, the .npz) of the lhcb-like track recorded in
+    tests/fit/data/<name>.npz: its hits' layer, m (u, v), sigma (σ_u, σ_v), and its seed and
+    seed_cov."""
+    from pathlib import Path
+
+    from pkf.fit.candidates import Candidates
+
+    data = np.load(Path(__file__).parent / "data" / f"{name}.npz")
+    geometry = load_geometry("lhcb-like")
+    rows = np.arange(data["layer"].size)
+    candidates = Candidates.from_hit_lists(np.zeros(rows.size), np.zeros(rows.size), rows)
+    batch = TrackBatch.from_candidates(geometry, candidates, data["layer"], data["m"][:, 0], data["m"][:, 1],
+                                       data["sigma"][:, 0], data["sigma"][:, 1])
+    return geometry, batch, data

@@ -2,11 +2,10 @@
 improves electron fits where the detector can see the radiation, calibrated posteriors."""
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
-from fit_helpers import TruthSample
+from fit_helpers import TruthSample, recorded_track
 from scipy.special import ndtri
 from scipy.stats import kstest
 
@@ -145,15 +144,7 @@ def test_a_node_where_the_product_with_moments_fails_takes_the_mixtures_product(
     the product with the other filter's moments failed at a node (status "not positive
     definite", 7b6c52b) while the mixtures' product fits it: that node takes the mixtures'
     product, and the fit is the one with the product at every node."""
-    from pkf.fit.candidates import Candidates
-    from pkf.fit.tracks import TrackBatch
-
-    data = np.load(Path(__file__).parent / "data" / "gsf_moments_product_fails.npz")
-    geometry = load_geometry("lhcb-like")
-    rows = np.arange(data["layer"].size)
-    candidates = Candidates.from_hit_lists(np.zeros(rows.size), np.zeros(rows.size), rows)
-    batch = TrackBatch.from_candidates(geometry, candidates, data["layer"], data["m"][:, 0], data["m"][:, 1],
-                                       data["sigma"][:, 0], data["sigma"][:, 1])
+    geometry, batch, data = recorded_track("gsf_moments_product_fails")
     ctx = gsf_extrapolator(geometry)
     fits = [fit_batch_gsf(ctx, batch, options, data["seed"][None], data["seed_cov"][None])
             for options in (FitOptions(), _smoothing_everywhere())]
@@ -690,15 +681,7 @@ def _fit_heap_track(**context):
     """The track of the heap corruption above (lhcb-like minbias ν = 7.6, seed 77, event
     650–699; VELO + SciFi, no UT, p = 2.2 GeV), fitted by the GSF with `context`
     (`gsf_extrapolator`'s options)."""
-    from pkf.fit.candidates import Candidates
-    from pkf.fit.tracks import TrackBatch
-
-    data = np.load(Path(__file__).parent / "data" / "gsf_lead_leaves_envelope.npz")
-    geometry = load_geometry("lhcb-like")
-    rows = np.arange(data["layer"].size)
-    candidates = Candidates.from_hit_lists(np.zeros(rows.size), np.zeros(rows.size), rows)
-    batch = TrackBatch.from_candidates(geometry, candidates, data["layer"], data["m"][:, 0], data["m"][:, 1],
-                                       data["sigma"][:, 0], data["sigma"][:, 1])
+    geometry, batch, data = recorded_track("gsf_lead_leaves_envelope")
     return fit_batch_gsf(gsf_extrapolator(geometry, **context), batch, FitOptions(), data["seed"][None],
                          data["seed_cov"][None])
 

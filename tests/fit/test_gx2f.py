@@ -1,10 +1,9 @@
 """The global χ² fitter on the lhcb-like detector (issue 7)."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
-from fit_helpers import TruthSample
+from fit_helpers import TruthSample, recorded_track
 
 from pkf.fit.options import GX2FOptions
 from pkf.fit.seed import TRACK_VELO
@@ -197,15 +196,7 @@ def test_the_material_of_a_fit_is_that_of_its_first_trajectory():
     update limit. On 60 minbias events (ν = 7.6) this changed 271 of 16,546 fits, e.g.
     χ² 1,857 → 162, 261 → 38 (a real long track); on 60 Pythia events 152 of 11,468,
     real VELO-only χ²/ndf mean 1.82 → 1.00 and one 'extrapolation failed' now fitted."""
-    from pkf.fit.candidates import Candidates
-    from pkf.fit.tracks import TrackBatch
-
-    data = np.load(Path(__file__).parent / "data" / "gx2f_velo_track_at_the_hole_edge.npz")
-    geometry = load_geometry("lhcb-like")
-    rows = np.arange(data["layer"].size)
-    candidates = Candidates.from_hit_lists(np.zeros(rows.size), np.zeros(rows.size), rows)
-    batch = TrackBatch.from_candidates(geometry, candidates, data["layer"], data["m"][:, 0], data["m"][:, 1],
-                                       data["sigma"][:, 0], data["sigma"][:, 1])
+    geometry, batch, data = recorded_track("gx2f_velo_track_at_the_hole_edge")
     assert batch.track_type[0] == TRACK_VELO
     ext = reference_extrapolator(geometry)
     chi2 = {}
