@@ -155,8 +155,11 @@ pairs, ~61 products and two reductions. Fits of one component (no bremsstrahlung
 tracks) are bitwise those of the mixture product at every node; so are the written states of
 every track whose outlier removals are the same. `track_states` and the kept mixtures take the
 mixture product at every node for what they keep, but the outlier search takes the same node
-states as without them, so that they change no result. Measured (2026-12-07, both ways in one
-process, `max_outliers` 2):
+states as without them, so that they change no result. Where the product with the other
+filter's moments fails, or gives a non-positive variance, the node takes the mixture product
+(one minimum-bias track of 4,158, seed 31, had failed that way: tests/fit/data/
+gsf_moments_product_fails.npz). Measured (2026-12-07, both ways in one process,
+`max_outliers` 2):
 
 - CPU time: ×0.709 (`benchmarks/side_by_side.py --workload gsf --events 60 --rounds 6`
   against 039a7a5, 571 lhcb-like electrons, 12 components: medians 3.59 → 2.64 ms per track
@@ -179,6 +182,24 @@ process, `max_outliers` 2):
 - The node states between (not written) are the collapsed approximation: at the last UT hit
   the δp/p core is 0.366 % instead of the mixture product's 0.310 % (`tests/fit/test_gsf.py`
   judges the mixture smoother there with the option on).
+
+Tried and not kept (2026-12-07, later session), with the smoothing above:
+- A Bethe–Heitler mixture of 6 components, fitted on t ≤ 0.05 (maximum CDF difference 0.0067;
+  0.0020–0.0023 at the lhcb-like planes' t ≈ 0.01, where the shipped 8 components give
+  0.0008): ×0.997 the CPU time (electron gun seed 7, 1,500 tracks, best of 3 interleaved), and
+  the first-hit q/p pull core 0.669 → 0.556, the last-hit pull RMS 2.19 → 2.54. After the
+  sibling merge to 42 components the number of Bethe–Heitler components does not set the cost.
+- One convolution for consecutive planes without a hit (the Bethe–Heitler distribution of
+  t₁ + t₂ is that of both planes, exactly): between their first and last hit the electrons of
+  that sample cross the active area of 29.7 planes and have 28.4 nodes, so 2.3 convolutions
+  per track and direction could be saved, too few to pay for the approximation.
+- `_reduce` on 2,614 captured 42 → 12 reductions (the forward predictions of 300 lhcb-like
+  electron tracks, convolved, cut and sibling-merged as in the fit): 10.5 µs each, of which
+  3.1 µs are the first nearest neighbours (74 ns per row: the row alone 12 ns, its
+  `_first_min` alone 26 ns, the two together 54 ns: the scalar reads of a row just stored by
+  vector stores wait) and ~240 ns per merge. The half matrix, each distance also offered to
+  the column's record in the same loop: ×1.17; the row's minimum without storing the row (the
+  distances computed in `_first_min`'s four lanes): ×1.16. Both merged bitwise the same pairs.
 
 Two priors that are not measurements (measured with the probability integral transform,
 PIT = CDF of the smoothed q/p mixture at the true q/p, which is uniform and whose
