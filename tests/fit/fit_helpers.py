@@ -86,8 +86,8 @@ class TruthSample:
 
 def recorded_track(name: str):
     """(geometry, a TrackBatch of the one track, the .npz) of the lhcb-like track recorded in
-    tests/fit/data/<name>.npz: its hits' layer, m (u, v), sigma (σ_u, σ_v), and its seed and
-    seed_cov."""
+    tests/fit/data/<name>.npz: its hits' layer, m (u, v), sigma (σ_u, σ_v), its seed and
+    seed_cov, and where recorded its first hit's true state (`truth`)."""
     from pathlib import Path
 
     from pkf.fit.candidates import Candidates

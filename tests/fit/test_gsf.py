@@ -154,6 +154,21 @@ def test_a_node_where_the_product_with_moments_fails_takes_the_mixtures_product(
         np.testing.assert_array_equal(fits[0].locations[name][1], fits[1].locations[name][1])
 
 
+def test_a_fit_whose_components_all_curl_away_is_repeated_with_the_seeds_q_over_p_width():
+    """A real long track of the default path (Pythia minimum bias ν = 3, seed 5, triplet
+    pattern: a 2.43 GeV π⁻ with ty = −0.25, recorded with its first hit's truth) through the
+    GSF: from the widened q/p prior its one UT hit pulls every component below 1.5 GeV, and
+    all of them curl away in the magnet ("extrapolation failed" before the fallback). The fit
+    is repeated with the seed's own q/p width (passes 3): fitted, χ²/ndf below 2, and the
+    first-hit state within 3σ of the truth in every parameter."""
+    geometry, batch, data = recorded_track("gsf_wide_prior_curls")
+    fit = fit_batch_gsf(gsf_extrapolator(geometry), batch, FitOptions(), data["seed"][None], data["seed_cov"][None])
+    assert list(fit.status) == [0] and list(fit.passes) == [3]
+    assert fit.chi2[0] / fit.ndf[0] < 2.0
+    state, cov = fit.locations["first_hit"][1][0], fit.locations["first_hit"][2][0]
+    assert np.all(np.abs((state - data["truth"]) / np.sqrt(np.diag(cov))) < 3.0)
+
+
 def test_smoothing_at_the_written_nodes_is_exact_for_one_component():
     """Pions (no bremsstrahlung, one component): every node state bitwise the mixture product's."""
     geometry = load_geometry("lhcb-like")

@@ -266,6 +266,29 @@ electron-hypothesis Kalman fit's first-hit q/p recovers only part (0.83). Repeat
 the long and 63 % of the upstream electrons; of pions through the GSF, 6 % of the long and
 61 % of the upstream tracks. `GsfResult.passes` says which.
 
+Fallback. The widened prior leaves the forward filter's q/p upstream of the magnet to the
+VELO and the UT alone. On a low-momentum track with a large slope one UT hit that fluctuates
+by 1σ can then pull every component to a momentum that curls away in the magnet, whose field
+grows with |y| (a 2.43 GeV π⁻ with ty = −0.25 through the GSF, the default triplet pattern:
+its one UT hit took all components from 2.35 to ≤ 1.48 GeV, and at |y| ≈ 2 m each of them
+left the envelope); the fit failed ("extrapolation failed") where the Kalman fitters fit the
+track. A fit whose extrapolation failed is therefore repeated with the seed's own q/p width,
+the prior of the Kalman fitters and of the GSF without bremsstrahlung (`narrow_ctx`,
+`GsfResult.passes` 3). On those tracks the magnet's q/p is counted twice upstream of it (see
+above); every other track's fit is unchanged, bit for bit. Measured (2026-12-07):
+- minimum bias ν = 7.6 through the triplet pattern (`pkf reconstruct --fitter gsf`, 20
+  events, seed 31): 5,779 → 5,780 of 5,780 tracks fitted (the reference Kalman fit and the
+  GX2F: 5,780); the recovered track (a real long track) χ²/ndf 0.72, beamline, first- and
+  last-hit pulls within ±1.02; every other row of the χ² table identical;
+- Pythia minimum bias ν = 3 (10 events, seed 5): 1,068 → 1,069 of 1,069; the track above
+  (tests/fit/data/gsf_wide_prior_curls.npz) χ²/ndf 0.95, first-hit pulls x, y, tx, ty −1.07,
+  −1.58, 0.44, 2.38 where the reference Kalman fit's are −1.06, −1.56, 0.42, 2.31 (a scattered
+  track), q/p 0.08;
+- minimum bias truth tracks (15 events, seed 31, 4,158 tracks): 7 → 5 extrapolation failures.
+  The reference Kalman fit fails on the same 5: their least-squares seeds (`pkf.fit.seed`) are
+  23–56 % below the true momentum (|ty| 0.19–0.29, 1.0–2.4 GeV), and every field-map fit
+  curls at the seed's q/p. The triplet pattern's seeds carry the pattern's q/p instead.
+
 Output per node (`output`):
 - "core" (default): the centre of the Gaussian core of the smoothed q/p marginal — three
   passes of moment matching within ±3σ (`_core`), the fit `pkf.report.gauss` makes of a
@@ -574,7 +597,8 @@ def product_target(options: GSFOptions) -> int:
 @dataclass
 class GsfResult(FitResult):
     """`FitResult` plus, per track, the number of components of the smoothed mixture at
-    the first hit (after reduction), the passes of its last fit (1, or 2 when relinearised),
+    the first hit (after reduction), the passes of its last fit (1, or 2 when relinearised; 3:
+    fitted again with the seed's own q/p width after its extrapolation failed, the fallback),
     and, if kept, every node's smoothed q/p mixture."""
 
     n_components: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -1986,8 +2010,9 @@ class GsfFitter(NamedTuple):
     longest track (`gsf_fitter` allocates it), among it each node's mixture second moment
     about its output (`mixture_cov`, written over the output by `_gsf_end`), each track's backward q/p prior
     (`qop_prior_kind`: QOP_MEASURED, QOP_VAGUE, QOP_PRIOR_ONLY) and those fitted as one Gaussian (`single_gaussian`, with
-    `plain_ctx`: the context without the Bethe–Heitler convolution), the seed of a second pass
-    (`relinearised_seed`) and each track's number of passes in its last fit (`out_passes`). Outliers are found with
+    `plain_ctx`: the context without the Bethe–Heitler convolution), the context whose forward filter keeps the
+    seed's own q/p width (`narrow_ctx`, the fallback of `_gsf_fit`), the seed of a second pass
+    (`relinearised_seed`) and each track's passes in its last fit (`out_passes`; 3: the fallback). Outliers are found with
     the measurement-only fallback: a mixture's covariance ("mean", "max-weight" outputs)
     can exceed the measurement variance."""
 
@@ -2014,6 +2039,7 @@ class GsfFitter(NamedTuple):
     single_gaussian: np.ndarray
     relinearised_seed: np.ndarray
     out_passes: np.ndarray
+    narrow_ctx: tuple
 
 
 def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: np.ndarray,
@@ -2042,7 +2068,7 @@ def gsf_fitter(ctx: GsfExtrapolator, n_nodes: int, n_tracks: int, qop_mixture: n
         ctx._replace(bethe_heitler=False),
         np.zeros(n_tracks, dtype=np.bool_) if single_gaussian is None
         else np.ascontiguousarray(single_gaussian, dtype=np.bool_),
-        np.zeros(5), np.zeros(n_tracks, dtype=np.int64))
+        np.zeros(5), np.zeros(n_tracks, dtype=np.int64), ctx._replace(seed_qop_fraction=0.0))
 
 
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
@@ -2055,37 +2081,45 @@ def _gsf_begin(f, t, seed):
     return STATUS_OK
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always", **NO_REFCOUNT)
+def _fit_with(f, ctx, lo, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov, out_mix, prior):
+    """`_fit_track` of one track (nodes lo…) with context ctx and the fitter's scratch."""
+    return _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w, f.fwd_mu, f.fwd_cov,
+                      f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.moments, f.scratch, f.bh, f.vec, out_state,
+                      out_cov, out_mix, f.stages, lo, f.mixture_cov, prior)
+
+
 @nb.njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _gsf_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state, out_cov):
     """`_fit_track` with the fitter's scratch; the component count into out_n_components.
     With bremsstrahlung modelled, a fit whose first-hit momentum came out more than
     RELINEARISE_QOP_CHANGE above the seed's (|q/p| below (1 − 0.1)·|q/p|) is repeated from
     that q/p (module docstring, "Relinearisation"; the first fit's result is kept if the
-    second fails)."""
+    second fails). A fit whose extrapolation failed (every component left the envelope or
+    stopped) is repeated with the seed's own q/p width (`narrow_ctx`; module docstring,
+    "Fallback"): out_passes 3."""
     out_mix = f.out_qop_mixture[lo:hi] if f.out_qop_mixture.shape[0] > 0 else f.out_qop_mixture
     ctx = f.plain_ctx if f.single_gaussian[t] else f.ctx
-    status, chi2, n_comp = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
-                                      f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest, f.moments,
-                                      f.scratch, f.bh, f.vec, out_state, out_cov, out_mix, f.stages, lo,
-                                      f.mixture_cov, f.qop_prior_kind[t])
+    prior = f.qop_prior_kind[t]
+    status, chi2, n_comp = _fit_with(f, ctx, lo, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, out_state,
+                                     out_cov, out_mix, prior)
     f.out_passes[t] = 1
     radiated = abs(out_state[0, 4]) < (1.0 - RELINEARISE_QOP_CHANGE) * abs(seed[4])
     if status == STATUS_OK and ctx.bethe_heitler and radiated:
         copy5(seed, f.relinearised_seed)
         f.relinearised_seed[4] = out_state[0, 4]
-        status2, chi2_2, n_comp2 = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, f.relinearised_seed,
-                                              seed_cov, f.fwd_w, f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf,
-                                              f.count, f.nearest, f.moments, f.scratch, f.bh, f.vec,
-                                              out_state, out_cov, out_mix, f.stages, lo, f.mixture_cov,
-                                              f.qop_prior_kind[t])
+        status2, chi2_2, n_comp2 = _fit_with(f, ctx, lo, z, n_meas, hx, hy, m, sigma, active, f.relinearised_seed,
+                                             seed_cov, out_state, out_cov, out_mix, prior)
         if status2 == STATUS_OK:
             status, chi2, n_comp = status2, chi2_2, n_comp2
             f.out_passes[t] = 2
         else:  # the first fit again (its outputs were overwritten)
-            status, chi2, n_comp = _fit_track(ctx, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov, f.fwd_w,
-                                              f.fwd_mu, f.fwd_cov, f.fwd_n, f.buf, f.pbuf, f.count, f.nearest,
-                                              f.moments, f.scratch, f.bh, f.vec, out_state, out_cov,
-                                              out_mix, f.stages, lo, f.mixture_cov, f.qop_prior_kind[t])
+            status, chi2, n_comp = _fit_with(f, ctx, lo, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
+                                             out_state, out_cov, out_mix, prior)
+    if status == STATUS_EXTRAPOLATION_FAILED and ctx.bethe_heitler and ctx.seed_qop_fraction > 0.0:
+        status, chi2, n_comp = _fit_with(f, f.narrow_ctx, lo, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
+                                         out_state, out_cov, out_mix, prior)
+        f.out_passes[t] = 3
     f.out_n_components[t] = n_comp
     return status, chi2
 
