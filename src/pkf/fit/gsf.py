@@ -286,7 +286,7 @@ above); every other track's fit is unchanged, bit for bit. Measured (2026-12-07)
   track), q/p 0.08;
 - minimum bias truth tracks (15 events, seed 31, 4,158 tracks): 7 → 5 extrapolation failures.
   The reference Kalman fit fails on the same 5: their least-squares seeds (`pkf.fit.seed`) are
-  23–56 % below the true momentum (|ty| 0.19–0.29, 1.0–2.4 GeV), and every field-map fit
+  23–56 % below the true momentum (|ty| 0.19–0.29, 1.0–2.2 GeV), and every field-map fit
   curls at the seed's q/p. The triplet pattern's seeds carry the pattern's q/p instead.
 
 Output per node (`output`):
