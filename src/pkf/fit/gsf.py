@@ -188,7 +188,9 @@ Tried and not kept (2026-12-07, later session), with the smoothing above:
   0.0020–0.0023 at the lhcb-like planes' t ≈ 0.01, where the shipped 8 components give
   0.0008): ×0.997 the CPU time (electron gun seed 7, 1,500 tracks, best of 3 interleaved), and
   the first-hit q/p pull core 0.669 → 0.556, the last-hit pull RMS 2.19 → 2.54. After the
-  sibling merge to 42 components the number of Bethe–Heitler components does not set the cost.
+  sibling merge to 42 components the number of Bethe–Heitler components sets at most ~6 % of
+  the cost (two of the 8 components split into identical halves, 24 more children and sibling
+  merges per plane: ×1.064, `benchmarks/side_by_side.py --workload gsf`, 4 rounds).
 - One convolution for consecutive planes without a hit (the Bethe–Heitler distribution of
   t₁ + t₂ is that of both planes, exactly): between their first and last hit the electrons of
   that sample cross the active area of 29.7 planes and have 28.4 nodes, so 2.3 convolutions
@@ -196,8 +198,8 @@ Tried and not kept (2026-12-07, later session), with the smoothing above:
 - `_reduce` on 2,614 captured 42 → 12 reductions (the forward predictions of 300 lhcb-like
   electron tracks, convolved, cut and sibling-merged as in the fit): 10.5 µs each, of which
   3.1 µs are the first nearest neighbours (74 ns per row: the row alone 12 ns, its
-  `_first_min` alone 26 ns, the two together 54 ns: the scalar reads of a row just stored by
-  vector stores wait) and ~240 ns per merge. The half matrix, each distance also offered to
+  `_first_min` alone 26 ns, the two together 54 ns: probably the scalar reads of a row just
+  stored by vector stores waiting for them) and ~240 ns per merge. The half matrix, each distance also offered to
   the column's record in the same loop: ×1.17; the row's minimum without storing the row (the
   distances computed in `_first_min`'s four lanes): ×1.16. Both merged bitwise the same pairs.
 

@@ -69,7 +69,7 @@ zeros and ones of F and Q where every lane's step has them (generated like
 that keep q/p 315), chosen node by node: minimum bias ×1.002 (VELO steps only) and
 ×0.990 (both; quartiles 0.95–1.05) — the step waits on its chain of pivots, not on its
 products; and (2026-12-06, branch exp) the lanes' rows made by 8×8 transposes in registers
-(shufflevector: 8 vector loads, 24 shuffles) instead of the AVX-512 gathers LLVM makes of
+(shufflevector: 8 vector loads, 24 shuffles) instead of the AVX2 gathers LLVM makes (znver3) of
 `_gather_node` (perf put 43 % of this loop's samples on those gathers), with a read
 prefetch of the next node's records and the outputs transposed likewise: bitwise the same,
 fit_core minimum bias 287–290 → 294–312 ns/node (4 rounds, alternating processes) — the

@@ -17,6 +17,10 @@ slope (the first measurements fix them), a 10% q/p prior, which the data outweig
 orders of magnitude for long tracks, widened by the least-squares q/p variance for
 tracks whose hits hardly measure q/p.
 
+Where the kick integrals along that line do not describe a track (a steep low-momentum
+track's path bends far from it in the dipole), the seed is refitted through the field map:
+`pkf.fit.seed_field` (its docstring has the check, the refinement and their measurements).
+
 The pattern recognition's estimate, where it hands one over (`pattern_seed`, the triplet
 pattern's VELO state and forward q/p), replaces this seed: on lhcb-like minimum bias (2 events
 at ν = 7.6, real long tracks) the pattern's q/p is off by 0.21 % (median), the least-squares
@@ -80,6 +84,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
+from pkf.fit.seed_field import linear_model_qop_step, refine_through_field
 from pkf.physics.linalg import invert_spd, matvec5
 from pkf.geometry.acceptance import in_active_area
 from pkf.geometry.detector import SUBDETECTORS
@@ -92,6 +97,9 @@ SEED_STEP = 50.0  # mm, integration step of the kick integrals
 QOP_PRIOR_SIGMA = 1.0 / 100.0  # 1/MeV
 SEED_VARIANCES = (100.0, 100.0, 0.01, 0.01)
 SEED_QOP_FRACTION = 0.1
+#: Slope change |q/p·∫g dz| from the first to the last node below which the least-squares
+#: seed is not checked: on lhcb-like minimum bias its check moved q/p by at most 2 % there.
+LINEAR_BEND = 0.1
 
 #: Track type codes (`track_type_codes`) and their names in the chi2 table.
 TRACK_LONG = 0
@@ -146,10 +154,14 @@ def _straight_line(z, n_meas, hx, hy, m, sigma, z_ref, out):
 
 
 @nb.njit(cache=True)
-def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid, out_state, out_cov):
+def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid, out_state, out_cov,
+               refine_above):
     """Fill out_state (5) at z[0] and the Kalman seed covariance out_cov (5×5).
 
-    Returns the least-squares variance of q/p [1/MeV²] (large: q/p not measured).
+    Where refine_above > 0 and one Gauss–Newton step through the field map would move the
+    least-squares q/p by more than refine_above·|q/p| (`pkf.fit.seed_field.linear_model_qop_step`),
+    the seed is refined through the field map (`pkf.fit.seed_field.refine_through_field`).
+    Returns the q/p variance [1/MeV²] of the fit that made the seed (large: q/p not measured).
     """
     n = z.size
     z_ref = z[0]
@@ -208,11 +220,21 @@ def seed_track(z, n_meas, hx, hy, m, sigma, field_kind, field_params, field_grid
         return np.inf
     matvec5(inv, b, out_state)
     # the fitted line parameters are at z_ref already; tx0/ty0 are the slopes there
+    qop_var = inv[4, 4]
+    bend = abs(out_state[4]) * max(abs(k1x), abs(k1y))  # the model's slope change, first to last node
+    if refine_above > 0.0 and bend > LINEAR_BEND:
+        step = linear_model_qop_step(out_state, inv, z, n_meas, hx, hy, m, sigma, kx, ky, QOP_PRIOR_SIGMA,
+                                     field_kind, field_params, field_grid)
+        if not abs(step) <= refine_above * abs(out_state[4]):
+            refined_var = refine_through_field(out_state, z, n_meas, hx, hy, m, sigma, QOP_PRIOR_SIGMA,
+                                               field_kind, field_params, field_grid)
+            if math.isfinite(refined_var):
+                qop_var = refined_var
     _loose_seed_cov(out_cov)
-    # 10% of q/p, or the least-squares error where the hits hardly measure q/p (little
+    # 10% of q/p, or the fit's error where the hits hardly measure q/p (little
     # field integral, e.g. VELO-only tracks): the prior must never claim more than the data
-    out_cov[4, 4] = (SEED_QOP_FRACTION * out_state[4]) ** 2 + inv[4, 4]
-    return inv[4, 4]
+    out_cov[4, 4] = (SEED_QOP_FRACTION * out_state[4]) ** 2 + qop_var
+    return qop_var
 
 
 @nb.njit(cache=True, inline="always")
@@ -301,7 +323,7 @@ def seed_tracks(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sig
         hi = offsets[t + 1]
         out_qop_var[t] = seed_track(node_z[lo:hi], node_n_meas[lo:hi], node_hx[lo:hi], node_hy[lo:hi],
                                     node_m[lo:hi], node_sigma[lo:hi], field_kind, field_params,
-                                    field_grid, out_states[t], out_covs[t])
+                                    field_grid, out_states[t], out_covs[t], _refine_above(track_type[t]))
         if track_type[t] == TRACK_VELO and math.isfinite(out_qop_var[t]):
             velo_qop_prior(out_states[t], out_covs[t])
         elif track_type[t] == TRACK_UPSTREAM and math.isfinite(out_qop_var[t]):
@@ -310,6 +332,17 @@ def seed_tracks(offsets, node_z, node_n_meas, node_hx, node_hy, node_m, node_sig
             out_covs[t, 4, 4] = (UPSTREAM_QOP_FRACTION * out_states[t, 4]) ** 2 + out_qop_var[t]
         out_qop_var[t] = pattern_seed(out_states[t], out_covs[t], out_qop_var[t], track_type[t], line,
                                        pattern_qop_var[t])
+
+
+@nb.njit(cache=True, inline="always")
+def _refine_above(track_type):
+    """Relative q/p change above which `seed_track` refines a seed of this type through the
+    field map: the width of the type's q/p prior (SEED_QOP_FRACTION, UPSTREAM_QOP_FRACTION; a
+    seed off by more than its prior's width would pull the fit), 0 (never) for VELO-only tracks,
+    whose q/p the VELO's field does not measure."""
+    if track_type == TRACK_VELO:
+        return 0.0
+    return UPSTREAM_QOP_FRACTION if track_type == TRACK_UPSTREAM else SEED_QOP_FRACTION
 
 
 @nb.njit(cache=True, inline="always")
