@@ -7,10 +7,11 @@ from fit_helpers import TruthSample, recorded_track
 
 from pkf.fit.options import GX2FOptions
 from pkf.fit.seed import TRACK_VELO
-from pkf.fit.gx2f import MAX_UPDATES, _propagate, _solve, fit_batch_gx2f
+from pkf.fit.gx2f import MAX_PREDICTED_DECREASE, MAX_UPDATES, _propagate, _solve, fit_batch_gx2f
 from pkf.fit.reference import reference_extrapolator
 from pkf.physics.linalg import search_sorted
-from pkf.fit.tracks import FitOptions
+from pkf.fit.status import STATUS_NOT_CONVERGED
+from pkf.fit.tracks import FitOptions, fit_batch
 from pkf.geometry import load_geometry
 from pkf.params.gauss import gaussian_core
 
@@ -65,6 +66,8 @@ def test_pulls_and_convergence(pions, fits):
         assert abs(core.mean) < 0.1, (name, core)
     ok = long & (gx2f.status == 0)
     assert np.mean(gx2f.converged[ok]) >= 0.99
+    # a converged fit is at its minimum: its next step predicts no χ² decrease
+    assert np.all(gx2f.decrease[ok & gx2f.converged] < 1e-6)
     assert gx2f.iterations[ok].max() <= MAX_UPDATES
     assert 0.9 <= np.mean(gx2f.chi2[ok] / gx2f.ndf[ok]) <= 1.15
     # the beamline state exists for every good track
@@ -87,8 +90,9 @@ def _trajectory(ext, batch, t, alpha, theta):
 
 def test_linear_time_solve_equals_the_dense_normal_equations(pions):
     """The backward elimination of the angles + forward substitution gives the same
-    Gauss–Newton step, marginal covariance at the first node and node covariances as
-    solving the dense normal equations over (α, θ_1 … θ_M)."""
+    Gauss–Newton step, marginal covariance at the first node, node covariances and
+    predicted χ² decrease bᵀA⁻¹b as solving the dense normal equations A·δ = b over
+    (α, θ_1 … θ_M)."""
     ext, batch = pions.extrapolator, pions.batch
     t = int(np.flatnonzero(pions.long_tracks())[3])
     alpha = pions.seeds[t].copy()
@@ -124,18 +128,20 @@ def test_linear_time_solve_equals_the_dense_normal_equations(pions):
         lam[c:c + 2] = 1.0 / a["theta0"][p] ** 2
         prior[c:c + 2] = theta[p] / a["theta0"][p] ** 2
     normal = jac.T @ jac + np.diag(lam)
-    step = np.linalg.solve(normal, jac.T @ np.array(rhs) - prior)
+    gradient = jac.T @ np.array(rhs) - prior
+    step = np.linalg.solve(normal, gradient)
     cov = np.linalg.inv(normal)
     # the linear-time solver
     d_alpha = np.zeros(5)
     d_theta = np.zeros((slots, 2))
     node_cov = np.zeros((n, 5, 5))
-    ok = _solve(n, batch.n_meas[lo:hi], batch.hx[lo:hi], batch.hy[lo:hi], batch.m[lo:hi], batch.sigma[lo:hi],
+    decrease = _solve(n, batch.n_meas[lo:hi], batch.hx[lo:hi], batch.hy[lo:hi], batch.m[lo:hi], batch.sigma[lo:hi],
                 np.ones(n, dtype=np.bool_), a["node_state"], a["jac"], a["g"], theta, a["theta0"],
                 a["step_plane"], np.zeros((slots, 2, 5)), np.zeros((slots, 2)), np.zeros((slots, 2, 2)), d_alpha,
                 d_theta, node_cov, *(np.zeros((5, 5)) for _ in range(1)), np.zeros(5), np.zeros((5, 2)),
                 *(np.zeros((5, 5)) for _ in range(4)), np.zeros(10))
-    assert ok
+    np.testing.assert_allclose(decrease, step @ gradient, rtol=1e-6)
+    assert decrease > 0.0
     scale = np.sqrt(np.diag(cov))
     np.testing.assert_allclose(d_alpha / scale[:5], step[:5] / scale[:5], atol=1e-6)
     dense_theta = np.array([step[col[p]:col[p] + 2] for p in used])
@@ -207,3 +213,36 @@ def test_the_material_of_a_fit_is_that_of_its_first_trajectory():
         chi2[updates] = fit.chi2[0] / fit.ndf[0]
     assert chi2[5] < 1.5, chi2
     assert chi2[50] == chi2[5]
+
+
+def test_a_fit_far_from_its_minimum_after_its_updates_fails():
+    """An upstream track of minimum bias (ν = 7.6, seed 31, truth pattern) whose q/p only
+    the VELO–UT kick measures: after 5 updates its next Gauss–Newton step still predicts
+    a χ² decrease of ~1,000 (and ~370 after 50), so it is "did not converge" with NaN
+    states rather than a 5th-update state reported as fitted."""
+    geometry, batch, data = recorded_track("gx2f_does_not_converge")
+    ext = reference_extrapolator(geometry)
+    for updates in (5, 50):
+        fit = fit_batch_gx2f(ext, batch, FitOptions(gx2f=GX2FOptions(max_updates=updates)), data["seed"][None],
+                             data["seed_cov"][None])
+        assert fit.status[0] == STATUS_NOT_CONVERGED and not fit.converged[0]
+        assert fit.decrease[0] > 100 * MAX_PREDICTED_DECREASE, fit.decrease
+        assert np.all(np.isnan(fit.node_state)) and np.isnan(fit.chi2[0])
+        assert fit.status_names()[0] == "did not converge"
+
+
+def test_the_line_search_judges_a_step_by_the_chi2_it_minimised():
+    """An upstream track of the same sample that stalled (status "did not converge",
+    predicted decrease 12 after 5 updates) while its line search compared χ² with the
+    Highland widths of the new trajectory: judged with the widths the update was
+    linearised on, it converges in 5 updates to the χ² minimum the iterated reference
+    Kalman fit of the same hits finds (45.5 and 45.8 for 11 degrees of freedom)."""
+    geometry, batch, data = recorded_track("gx2f_line_search_at_fixed_widths")
+    ext = reference_extrapolator(geometry)
+    seed, seed_cov = data["seed"][None], data["seed_cov"][None]
+    fit = fit_batch_gx2f(ext, batch, FitOptions(), seed, seed_cov)
+    kalman = fit_batch(ext, batch, FitOptions.from_flat(iterations=2), seed, seed_cov)
+    assert fit.status[0] == 0 and fit.converged[0], (fit.status, fit.iterations)
+    assert fit.decrease[0] < 1e-6
+    assert fit.ndf[0] == kalman.ndf[0]
+    assert abs(fit.chi2[0] - kalman.chi2[0]) < 1.0, (fit.chi2, kalman.chi2)

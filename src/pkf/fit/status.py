@@ -8,6 +8,7 @@ STATUS_EXTRAPOLATION_FAILED = 2
 STATUS_NOT_POSITIVE_DEFINITE = 3
 STATUS_BELOW_P_MIN = 4
 STATUS_NO_SEED = 5
+STATUS_NOT_CONVERGED = 6
 
 STATUS_NAMES = (
     "ok",
@@ -16,4 +17,5 @@ STATUS_NAMES = (
     "covariance not positive definite",
     "momentum below the parametrization's p_min",
     "no seed estimate",
+    "did not converge",
 )
