@@ -538,6 +538,15 @@ STEP_HALVING_TOLERANCE = 1e-6
 MAX_STEP_HALVINGS = 8
 
 
+@nb.njit(cache=True, inline="always")
+def _track_chi2(f, t, n, n_meas, hx, hy, m, sigma, active, widths, n_slots):
+    """χ² of track t's current trajectory with the Highland widths `widths` (f.theta0: the
+    trajectory's own; f.theta0_last: those of the update's linearisation point), plus its
+    q/p prior term."""
+    chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, widths, n_slots)
+    return chi2 + f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+
+
 @nb.njit(cache=True, **NO_REFCOUNT)
 def _halve_step(f, t, z, n, plane_lo, n_slots, n_meas, hx, hy, m, sigma, active):
     """Take back half of the last update (d_alpha, d_theta halved), propagate again;
@@ -554,8 +563,7 @@ def _halve_step(f, t, z, n, plane_lo, n_slots, n_meas, hx, hy, m, sigma, active)
                         f.seg, f.tmp, f.cursor, f.stages, f.crossed, _width_shift(f, t), True)
     if status != STATUS_OK:
         return status, np.nan
-    chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0_last, n_slots)
-    return status, chi2 + f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+    return status, _track_chi2(f, t, n, n_meas, hx, hy, m, sigma, active, f.theta0_last, n_slots)
 
 
 @nb.njit(cache=True, **NO_REFCOUNT)
@@ -570,8 +578,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
     if status != STATUS_OK:
         return status, chi2
     n_slots = f.step_plane[n] if n > 1 else 0
-    chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
-    chi2 += f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+    chi2 = _track_chi2(f, t, n, n_meas, hx, hy, m, sigma, active, f.theta0, n_slots)
     updates = 0
     converged = False
     decrease = np.nan
@@ -598,8 +605,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
             break
         if f.step_plane[n] != n_slots:  # (cannot happen: the plane range is fixed by z)
             n_slots = f.step_plane[n]
-        line_chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0_last, n_slots)
-        line_chi2 += f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+        line_chi2 = _track_chi2(f, t, n, n_meas, hx, hy, m, sigma, active, f.theta0_last, n_slots)
         halvings = 0
         while line_chi2 > chi2 * (1.0 + STEP_HALVING_TOLERANCE) and halvings < MAX_STEP_HALVINGS:
             status, line_chi2 = _halve_step(f, t, z, n, plane_lo, n_slots, n_meas, hx, hy, m, sigma, active)
@@ -608,8 +614,7 @@ def _gx2f_fit(f, t, lo, hi, z, n_meas, hx, hy, m, sigma, active, seed, seed_cov,
             halvings += 1
         if status != STATUS_OK:
             break
-        new_chi2 = _chi2(f.node_state, n, n_meas, hx, hy, m, sigma, active, f.theta, f.theta0, n_slots)
-        new_chi2 += f.qop_weight[t] * (f.alpha[4] - f.qop_prior[t]) ** 2
+        new_chi2 = _track_chi2(f, t, n, n_meas, hx, hy, m, sigma, active, f.theta0, n_slots)
         if abs(new_chi2 - chi2) <= f.relative_chi2_change * new_chi2:
             converged = True
         chi2 = new_chi2
