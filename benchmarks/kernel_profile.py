@@ -15,6 +15,9 @@ this process for the timed part only, all its threads, ``--frequency`` samples/s
 - ``fit``: ``--fitter``'s batch fit (``fit_batch`` of `benchmarks/fit_compare.py`, one pass, no
   outlier removal) of `benchmarks/fit_core.py`'s minimum-bias long tracks, ``--repeat`` times
   (events: the dataset's 40);
+- ``gsf``: the GSF with 12 components of `benchmarks/side_by_side.py`'s lhcb-like electrons (2–50
+  GeV, ``--events`` events of 10 electrons, their long truth tracks), ``--repeat`` times; the
+  "ms/event" column is then ms per track;
 - ``reconstruct``: `pkf reconstruct DATASET --workers 1` in this process (``--dataset``;
   everything: validation, reading, pattern, seeds, fit, tables, Parquet writing).
 
@@ -26,6 +29,7 @@ binutils' ``nm``.
     python benchmarks/kernel_profile.py [--stage pattern] [--events 100] [--pileup 7.6] \
         [--repeat 3] [--top 30] [--json out.json]
     python benchmarks/kernel_profile.py --stage fit [--fitter parametrized] [--repeat 20]
+    python benchmarks/kernel_profile.py --stage gsf --events 60 --repeat 3
     python benchmarks/kernel_profile.py --stage reconstruct --dataset DATASET [--json out.json]
 """
 
@@ -241,7 +245,26 @@ def reconstruct_stage(args):
     return work, events
 
 
-STAGES = {"pattern": pattern_stage, "fit": fit_stage, "reconstruct": reconstruct_stage}
+def gsf_stage(args):
+    """(work, tracks): the GSF (12 components) of side_by_side.py's lhcb-like electrons (2–50 GeV,
+    ``--events`` events of 10), the acceptance sample of issue 18.2; per "event" read per track."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from side_by_side import gsf_workload
+
+    import pkf
+
+    build, n_tracks, _, _ = gsf_workload(args)
+    fit = build(pkf)
+    fit()  # warm-up
+
+    def work():
+        for _ in range(args.repeat):
+            fit()
+
+    return work, n_tracks * args.repeat
+
+
+STAGES = {"pattern": pattern_stage, "fit": fit_stage, "gsf": gsf_stage, "reconstruct": reconstruct_stage}
 
 
 def main() -> None:

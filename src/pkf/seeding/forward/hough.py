@@ -5,6 +5,21 @@ interpolation of the trajectory at the q/p nodes) and a Hough coordinate t in un
 the tolerance τ(q) = τ₀ + τ₁·|q/p| (`hough_grid`, `t_of_q`); a counting sort orders the
 entries by bin (`sort_entries`) and windows of bins with enough x layers are the
 clusters (`find_clusters`). Units: mm, 1/MeV.
+
+The fill (`hough_entries`) is ~16 % of the pattern recognition's CPU at ν = 7.6 (calling it
+twice per scan: ×1.16, `benchmarks/side_by_side.py --workload pattern`, 50 events, 6 rounds),
+~150k conversions per event (pass 1: 349 scans of ~204 entries, pass 2: 121 of ~638).
+Tried and not kept (2026-12-08, branch hough): an anchored fill, exact because a cluster
+needs an x layer of every station — one station's x layers converted first, the others' hits
+only in the x ranges of the runs of bins within window_bins − 1 of an anchor entry (each run's
+q/p ends carried to the layer by `node_interp`, ± 1 bin and 2 mm): outputs bitwise the same
+(truth and searched VELO tracks, ν = 1, 4, 7.6), but slower, ×1.13 at ν = 7.6 with runs merged
+over gaps < 4 bins, ×1.06–1.12 < 16, ×1.20 < 64 (the anchor station the last one or the one
+with the fewest hits in range). A conversion costs ~45 ns (16 % of 43 ms per event over ~150k;
+a slow machine state), about what locating a run on a layer (two `q_of_t`, two `node_interp`,
+a bisection) and the bins' bookkeeping cost, and the runs are nearly as many as the anchor
+entries; what the fill's time is made of (the conversion's two divisions and table reads, the
+taken hits' links) is the next question.
 """
 
 from __future__ import annotations
