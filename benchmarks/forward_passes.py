@@ -43,10 +43,9 @@ import numba as nb
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "seeding"))
-from forward_helpers import KEY_SCALE, simulate, truth_velo_tracks  # noqa: E402
+from forward_helpers import extension_metrics, simulate, truth_velo_tracks  # noqa: E402
 
 from pkf.geometry import load_geometry  # noqa: E402
-from pkf.geometry.detector import SUBDETECTORS  # noqa: E402
 from pkf.jit import NO_REFCOUNT  # noqa: E402
 from pkf.params.parameter_set import shipped_parameters  # noqa: E402
 from pkf.seeding.forward import ForwardOptions, extend_velo_tracks, kernel_setup  # noqa: E402
@@ -82,12 +81,9 @@ def _first_pass_candidates(tr, lay, cfg, w, pw, inp, tracks, n_cand, lo, hi, pat
                 paths[i, c, j] = top_ut.paths[utc.leaf[c], j]
 
 
-def _true_ut_hits(geometry, h, m, keys):
-    hit_key = np.where(m["particle_id"] > 0, h["event_id"] * KEY_SCALE + m["particle_id"], 0)
-    ut = geometry.layer_subdetector[h["layer"]] == SUBDETECTORS.index("ut")
-    ut_keys, ut_count = np.unique(hit_key[ut & (hit_key > 0)], return_counts=True)
-    pos = np.clip(np.searchsorted(ut_keys, keys), 0, max(ut_keys.size - 1, 0))
-    return np.where(ut_keys[pos] == keys, ut_count[pos], 0) if ut_keys.size else np.zeros(keys.size, int)
+def true_ut_hits(geometry, out, velo: dict, h: dict, p: dict, m: dict) -> np.ndarray:
+    """Each VELO track's particle's number of UT hits (`forward_helpers.extension_metrics`)."""
+    return extension_metrics(geometry, out, velo, h, p, m)["masks"]["n_ut_true"]
 
 
 def first_pass_candidates(args: tuple, out, tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -113,11 +109,12 @@ def first_pass_candidates(args: tuple, out, tracks: np.ndarray) -> tuple[np.ndar
 
 
 def measure(geometry, ext, pileup: float, events: int, seed: int) -> dict:
-    h, _, m = simulate(geometry, events, pileup, seed)
+    """One pile-up's row of the table (module docstring)."""
+    h, p, m = simulate(geometry, events, pileup, seed)
     velo = truth_velo_tracks(geometry, h, m)
     args = (velo["event"], velo["state"], velo["z"], h["event_id"], h["layer"], h["u"], h["sigma_u"], geometry, ext)
     out = extend_velo_tracks(*args)
-    n_ut_true = _true_ut_hits(geometry, h, m, velo["key"])
+    n_ut_true = true_ut_hits(geometry, out, velo, h, p, m)
     second = np.flatnonzero(out.from_scan & out.found)
     res = {"pileup": pileup, "events": events, "velo_tracks": int(velo["key"].size),
            "first_pass": int((out.found & ~out.from_scan).sum()), "second_pass": int(second.size),

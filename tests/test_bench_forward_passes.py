@@ -21,11 +21,11 @@ def test_the_first_pass_candidates_are_those_the_extension_started_from(bench):
 
     geometry = load_geometry("lhcb-like")
     ext = shipped_parameters(geometry).extrapolator(geometry)
-    h, _, m = bench.simulate(geometry, 4, 1.0, 7)
+    h, p, m = bench.simulate(geometry, 4, 1.0, 7)
     velo = bench.truth_velo_tracks(geometry, h, m)
     args = (velo["event"], velo["state"], velo["z"], h["event_id"], h["layer"], h["u"], h["sigma_u"], geometry, ext)
     out = extend_velo_tracks(*args)
-    n_ut_true = bench._true_ut_hits(geometry, h, m, velo["key"])
+    n_ut_true = bench.true_ut_hits(geometry, out, velo, h, p, m)
     first = np.flatnonzero(out.found & ~out.from_scan & (n_ut_true == 4))
     assert first.size > 100
     n_cand, in_range, same_hits = bench.first_pass_candidates(args, out, first)
